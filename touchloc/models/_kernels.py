@@ -1,0 +1,480 @@
+"""Compiled kernels for the joint position/normal nearest-face query.
+
+The query: for points p and (optional) unit normals n in the object frame, find
+
+    cost(p, n) = min_f  |p - closest_f(p)|^2 + w * |n - n_f|^2
+
+over the mesh faces f, where closest_f(p) is the closest point of triangle f and
+w = sigma_pos^2 / sigma_nor^2 (w = 0: position only). Dividing by sigma_pos^2 gives
+d_M^2 of Petrovskaya's proximity model (eq. 42.4-42.5).
+
+Three evaluators share the triangle routine:
+
+* ``query_bruteforce``: every face, every query (the reference);
+* ``query_joint``: a bounding-volume hierarchy with branch-and-bound on a lower bound of
+  the joint cost (box distance in position plus box distance in normal space): exact;
+* ``query_candidates``: a precomputed grid whose cells list the faces that win at the cell
+  centre for a set of sampled normals (and, in position-only mode, every face that can be
+  closest anywhere in the cell); the minimum is taken over that list only. Exact in
+  position-only mode, an approximation with measured error otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+_LEAF = 4
+_STACK = 128
+_NB = dict(cache=True, fastmath=False, nogil=True)
+
+
+# ---------------------------------------------------------------------------------------
+# geometry
+@nb.njit(inline="always", **_NB)
+def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return ax, ay, az
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return bx, by, bz
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return ax + v * abx, ay + v * aby, az + v * abz
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return cx, cy, cz
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return ax + w * acx, ay + w * acy, az + w * acz
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
+    denom = 1.0 / (va + vb + vc)
+    v = vb * denom
+    w = vc * denom
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+
+
+@nb.njit(inline="always", **_NB)
+def _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w):
+    qx, qy, qz = _closest_on_triangle(
+        px, py, pz,
+        tri[f, 0, 0], tri[f, 0, 1], tri[f, 0, 2],
+        tri[f, 1, 0], tri[f, 1, 1], tri[f, 1, 2],
+        tri[f, 2, 0], tri[f, 2, 1], tri[f, 2, 2],
+    )
+    c = (px - qx) ** 2 + (py - qy) ** 2 + (pz - qz) ** 2
+    if w > 0.0:
+        c += w * ((nx - nrm[f, 0]) ** 2 + (ny - nrm[f, 1]) ** 2 + (nz - nrm[f, 2]) ** 2)
+    return c, qx, qy, qz
+
+
+@nb.njit(inline="always", **_NB)
+def _box_d2(x, y, z, lo, hi, i):
+    d = 0.0
+    if x < lo[i, 0]:
+        d += (lo[i, 0] - x) ** 2
+    elif x > hi[i, 0]:
+        d += (x - hi[i, 0]) ** 2
+    if y < lo[i, 1]:
+        d += (lo[i, 1] - y) ** 2
+    elif y > hi[i, 1]:
+        d += (y - hi[i, 1]) ** 2
+    if z < lo[i, 2]:
+        d += (lo[i, 2] - z) ** 2
+    elif z > hi[i, 2]:
+        d += (z - hi[i, 2]) ** 2
+    return d
+
+
+# ---------------------------------------------------------------------------------------
+# brute force (reference)
+@nb.njit(parallel=True, **_NB)
+def _bruteforce(tri, nrm, P, N, w, use_n):
+    Q = P.shape[0]
+    F = tri.shape[0]
+    cost = np.empty(Q)
+    face = np.empty(Q, np.int64)
+    for q in nb.prange(Q):
+        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
+        nx = ny = nz = 0.0
+        if use_n:
+            nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        best = np.inf
+        bf = -1
+        for f in range(F):
+            c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w if use_n else 0.0)
+            if c < best:
+                best = c
+                bf = f
+        cost[q] = best
+        face[q] = bf
+    return face, cost
+
+
+def query_bruteforce(triangles, normals, P, N, w):
+    """Reference evaluation over every face. Returns (face (Q,), cost (Q,))."""
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    use_n = N is not None and w > 0
+    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    return _bruteforce(np.ascontiguousarray(triangles), np.ascontiguousarray(normals), P, Nn, float(w), use_n)
+
+
+# ---------------------------------------------------------------------------------------
+# bounding-volume hierarchy
+@dataclass(frozen=True)
+class BVH:
+    """Flattened BVH over faces. Node i covers faces order[start[i]:start[i]+count[i]]."""
+
+    tri: np.ndarray  # (F, 3, 3) faces in tree order
+    nrm: np.ndarray  # (F, 3) normals in tree order
+    face_id: np.ndarray  # (F,) original face index of each tree-order face
+    plo: np.ndarray  # (M, 3) position box low
+    phi: np.ndarray
+    nlo: np.ndarray  # (M, 3) normal box low
+    nhi: np.ndarray
+    left: np.ndarray  # (M,) child index or -1 for leaves
+    right: np.ndarray
+    start: np.ndarray
+    count: np.ndarray
+
+
+def build_bvh(triangles: np.ndarray, normals: np.ndarray, normal_scale: float) -> BVH:
+    """Build a BVH whose splits follow the 6-D key (centroid, normal_scale * normal).
+
+    Splits are at the median of the widest key dimension; leaves hold <= 4 faces. The
+    bounds stored per node are exact boxes of the faces' vertices and of their normals,
+    so the query's lower bound is valid whatever the split key.
+    """
+    F = len(triangles)
+    key = np.concatenate([triangles.mean(axis=1), normal_scale * normals], axis=1)
+    if normal_scale == 0:
+        key = key[:, :3]
+    vlo = triangles.min(axis=1)
+    vhi = triangles.max(axis=1)
+    order = np.arange(F)
+    # Iterative build: nodes appended as (start, count); children created breadth-first.
+    starts, counts, lefts, rights = [0], [F], [-1], [-1]
+    todo = [0]
+    while todo:
+        i = todo.pop()
+        s, c = starts[i], counts[i]
+        if c <= _LEAF:
+            continue
+        idx = order[s : s + c]
+        k = key[idx]
+        dim = int(np.argmax(k.max(axis=0) - k.min(axis=0)))
+        half = c // 2
+        part = np.argpartition(k[:, dim], half)
+        order[s : s + c] = idx[part]
+        lefts[i] = len(starts)
+        starts.append(s)
+        counts.append(half)
+        lefts.append(-1)
+        rights.append(-1)
+        rights[i] = len(starts)
+        starts.append(s + half)
+        counts.append(c - half)
+        lefts.append(-1)
+        rights.append(-1)
+        todo.extend([lefts[i], rights[i]])
+    starts = np.asarray(starts, np.int64)
+    counts = np.asarray(counts, np.int64)
+    M = len(starts)
+    # Boxes: leaves from their faces, then internal nodes bottom-up (children have larger ids).
+    plo = np.empty((M, 3))
+    phi = np.empty((M, 3))
+    nlo = np.empty((M, 3))
+    nhi = np.empty((M, 3))
+    lefts = np.asarray(lefts, np.int64)
+    rights = np.asarray(rights, np.int64)
+    for i in range(M - 1, -1, -1):
+        if lefts[i] < 0:
+            idx = order[starts[i] : starts[i] + counts[i]]
+            plo[i] = vlo[idx].min(axis=0)
+            phi[i] = vhi[idx].max(axis=0)
+            nlo[i] = normals[idx].min(axis=0)
+            nhi[i] = normals[idx].max(axis=0)
+        else:
+            a, b = lefts[i], rights[i]
+            plo[i] = np.minimum(plo[a], plo[b])
+            phi[i] = np.maximum(phi[a], phi[b])
+            nlo[i] = np.minimum(nlo[a], nlo[b])
+            nhi[i] = np.maximum(nhi[a], nhi[b])
+    return BVH(
+        tri=np.ascontiguousarray(triangles[order]),
+        nrm=np.ascontiguousarray(normals[order]),
+        face_id=order.astype(np.int64),
+        plo=plo, phi=phi, nlo=nlo, nhi=nhi,
+        left=lefts, right=rights, start=starts, count=counts,
+    )
+
+
+@nb.njit(inline="always", **_NB)
+def _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+             px, py, pz, nx, ny, nz, w, best0):
+    stack = np.empty(_STACK, np.int64)
+    lbs = np.empty(_STACK)
+    sp = 0
+    stack[0] = 0
+    lbs[0] = 0.0
+    sp = 1
+    best = best0
+    bf = -1
+    bx = by = bz = 0.0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        if lbs[sp] >= best:
+            continue
+        if left[node] < 0:
+            s = start[node]
+            for f in range(s, s + count[node]):
+                c, qx, qy, qz = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+                if c < best:
+                    best = c
+                    bf = f
+                    bx, by, bz = qx, qy, qz
+            continue
+        a = left[node]
+        b = right[node]
+        la = _box_d2(px, py, pz, plo, phi, a)
+        lb = _box_d2(px, py, pz, plo, phi, b)
+        if w > 0.0:
+            la += w * _box_d2(nx, ny, nz, nlo, nhi, a)
+            lb += w * _box_d2(nx, ny, nz, nlo, nhi, b)
+        # push the farther child first so the nearer one is explored first
+        if la < lb:
+            if lb < best:
+                stack[sp] = b
+                lbs[sp] = lb
+                sp += 1
+            if la < best:
+                stack[sp] = a
+                lbs[sp] = la
+                sp += 1
+        else:
+            if la < best:
+                stack[sp] = a
+                lbs[sp] = la
+                sp += 1
+            if lb < best:
+                stack[sp] = b
+                lbs[sp] = lb
+                sp += 1
+    return best, bf, bx, by, bz
+
+
+@nb.njit(parallel=True, **_NB)
+def _bvh_query(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
+    Q = P.shape[0]
+    cost = np.empty(Q)
+    face = np.empty(Q, np.int64)
+    closest = np.empty((Q, 3))
+    for q in nb.prange(Q):
+        nx = ny = nz = 0.0
+        if use_n:
+            nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        best, bf, bx, by, bz = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                        P[q, 0], P[q, 1], P[q, 2], nx, ny, nz,
+                                        w if use_n else 0.0, np.inf)
+        cost[q] = best
+        face[q] = bf
+        closest[q, 0] = bx
+        closest[q, 1] = by
+        closest[q, 2] = bz
+    return face, cost, closest
+
+
+def query_joint(tree: BVH, P, N, wp: float, wn: float):
+    """Exact joint query through the BVH.
+
+    Returns face (Q,) original face indices, cost (Q,) = |p-q|^2 + (wn/wp)|n-n_f|^2 (m^2)
+    and closest (Q, 3) closest points on the winning faces.
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    w = 0.0 if (N is None or wn == 0) else float(wn / wp)
+    use_n = w > 0
+    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    if len(P) == 0:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
+    f, c, cl = _bvh_query(tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left,
+                          tree.right, tree.start, tree.count, P, Nn, w, use_n)
+    return tree.face_id[f], c, cl
+
+
+# ---------------------------------------------------------------------------------------
+# candidate grid (the "fast" method)
+@dataclass(frozen=True)
+class CandidateGrid:
+    """Cells over an axis-aligned box; cell c lists faces ids[offsets[c]:offsets[c+1]]."""
+
+    lo: np.ndarray  # (3,) grid origin (corner of cell 0)
+    h: float  # cell size (m)
+    shape: tuple  # (nx, ny, nz)
+    offsets: np.ndarray  # (C+1,)
+    ids: np.ndarray  # tree-order face ids into tri/nrm below
+    tri: np.ndarray
+    nrm: np.ndarray
+    w: float  # normal weight the lists were built for (0: position-only)
+
+
+@nb.njit(parallel=True, **_NB)
+def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
+                plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
+    Q = P.shape[0]
+    cost = np.empty(Q)
+    face = np.empty(Q, np.int64)
+    for q in nb.prange(Q):
+        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
+        nx = ny = nz = 0.0
+        if use_n:
+            nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        ix = int(np.floor((px - lo[0]) / h))
+        iy = int(np.floor((py - lo[1]) / h))
+        iz = int(np.floor((pz - lo[2]) / h))
+        best = np.inf
+        bf = -1
+        if 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_:
+            cell = (ix * ny_ + iy) * nz_ + iz
+            for j in range(offsets[cell], offsets[cell + 1]):
+                f = ids[j]
+                c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+                if c < best:
+                    best = c
+                    bf = f
+        else:  # outside the grid: exact fallback through the tree
+            best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                         px, py, pz, nx, ny, nz, w, np.inf)
+        cost[q] = best
+        face[q] = bf
+    return face, cost
+
+
+@nb.njit(parallel=True, **_NB)
+def _grid_lists_position(tri, plo, phi, nlo, nhi, nrm, left, right, start, count,
+                         centres, half_diag, out_mask_rows, max_per_cell):
+    """Position-only lists: every face whose distance to the centre is within
+    dmin(centre) + 2 * half_diag can be the closest face somewhere in the cell."""
+    C = centres.shape[0]
+    F = tri.shape[0]
+    counts = np.zeros(C, np.int64)
+    for c in nb.prange(C):
+        px, py, pz = centres[c, 0], centres[c, 1], centres[c, 2]
+        best, _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                    px, py, pz, 0.0, 0.0, 0.0, 0.0, np.inf)
+        r = np.sqrt(best) + 2.0 * half_diag
+        r2 = r * r
+        # range query: faces with distance^2 <= r2
+        stack = np.empty(_STACK, np.int64)
+        sp = 1
+        stack[0] = 0
+        k = 0
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if _box_d2(px, py, pz, plo, phi, node) > r2:
+                continue
+            if left[node] < 0:
+                for f in range(start[node], start[node] + count[node]):
+                    d2, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, 0.0, 0.0, 0.0, 0.0)
+                    if d2 <= r2:
+                        if k < max_per_cell:
+                            out_mask_rows[c, k] = f
+                        k += 1
+            else:
+                stack[sp] = left[node]
+                stack[sp + 1] = right[node]
+                sp += 2
+        counts[c] = k
+    return counts
+
+
+@nb.njit(parallel=True, **_NB)
+def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                      centres, dirs, w, out_rows):
+    C = centres.shape[0]
+    D = dirs.shape[0]
+    for c in nb.prange(C):
+        for j in range(D):
+            _, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                      centres[c, 0], centres[c, 1], centres[c, 2],
+                                      dirs[j, 0], dirs[j, 1], dirs[j, 2], w, np.inf)
+            out_rows[c, j] = bf
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n roughly evenly spread unit vectors (golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = np.pi * (1.0 + 5**0.5) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def build_candidate_grid(tree: BVH, lo, hi, cell: float, w: float, n_normals: int = 64) -> CandidateGrid:
+    """Precompute the candidate lists of every cell of a grid over the box [lo, hi]."""
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    shape = tuple(int(s) for s in np.maximum(1, np.ceil((hi - lo) / cell)).astype(int))
+    g = [lo[d] + (np.arange(shape[d]) + 0.5) * cell for d in range(3)]
+    centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+    args = (tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+    if w > 0:
+        # the sampled normals, plus a zero "normal" whose winner is the closest face in position
+        dirs = np.vstack([fibonacci_sphere(n_normals), np.zeros((1, 3))])
+        rows = np.empty((len(centres), len(dirs)), np.int64)
+        _grid_lists_joint(args[0], args[1], args[2], args[3], args[4], args[5], args[6], args[7],
+                          args[8], args[9], centres, dirs, float(w), rows)
+        rows.sort(axis=1)
+        keep = np.ones_like(rows, dtype=bool)
+        keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
+        counts = keep.sum(axis=1)
+        ids = rows[keep]
+    else:
+        cap = 64
+        while True:
+            rows = np.full((len(centres), cap), -1, np.int64)
+            counts = _grid_lists_position(args[0], args[2], args[3], args[4], args[5], args[1],
+                                          args[6], args[7], args[8], args[9], centres,
+                                          0.5 * cell * np.sqrt(3.0), rows, cap)
+            if counts.max() <= cap:
+                break
+            cap = int(counts.max())
+        ids = rows[np.arange(cap)[None, :] < counts[:, None]]
+    offsets = np.zeros(len(centres) + 1, np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return CandidateGrid(lo=lo, h=float(cell), shape=shape, offsets=offsets, ids=ids.astype(np.int64),
+                         tri=tree.tri, nrm=tree.nrm, w=float(w))
+
+
+def query_grid(grid: CandidateGrid, tree: BVH, P, N):
+    """Query through the candidate grid (exact BVH fallback outside it).
+
+    Returns face (Q,) original face indices and cost (Q,) as in :func:`query_joint`.
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    use_n = grid.w > 0 and N is not None
+    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    if len(P) == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    f, c = _grid_query(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2],
+                       grid.offsets, grid.ids, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left,
+                       tree.right, tree.start, tree.count, P, Nn, grid.w if use_n else 0.0, use_n)
+    return tree.face_id[f], c
