@@ -1,0 +1,87 @@
+"""Actions a hand can take to gather information: guarded touches."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["GuardedTouch", "HandTouch"]
+
+
+@dataclass(frozen=True)
+class GuardedTouch:
+    """Move a probe along a straight line until it touches something, or give up.
+
+    Parameters
+    ----------
+    origin : (3,) float
+        Start of the motion in the world frame (m).
+    direction : (3,) float
+        Direction of motion; normalised on construction.
+    max_travel : float
+        Length of the motion (m) after which the touch ends without contact.
+    probe_radius : float
+        Radius of the probe tip (m); 0 for a point probe.
+    name : str, optional
+        A label for tables and plots.
+    """
+
+    origin: np.ndarray
+    direction: np.ndarray
+    max_travel: float
+    probe_radius: float = 0.0
+    name: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        o = np.asarray(self.origin, dtype=np.float64).reshape(-1)
+        d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ValidationError(f"GuardedTouch.origin must be 3 finite numbers, got {self.origin!r}")
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-12:
+            raise ValidationError(f"GuardedTouch.direction must be 3 finite numbers, not all zero, got {self.direction!r}")
+        if not (np.isfinite(self.max_travel) and self.max_travel > 0):
+            raise ValidationError(f"GuardedTouch.max_travel must be positive (m), got {self.max_travel}")
+        if not (np.isfinite(self.probe_radius) and self.probe_radius >= 0):
+            raise ValidationError(f"GuardedTouch.probe_radius must be >= 0 (m), got {self.probe_radius}")
+        o.flags.writeable = False
+        d = d / np.linalg.norm(d)
+        d.flags.writeable = False
+        object.__setattr__(self, "origin", o)
+        object.__setattr__(self, "direction", d)
+        object.__setattr__(self, "max_travel", float(self.max_travel))
+        object.__setattr__(self, "probe_radius", float(self.probe_radius))
+
+    @property
+    def end(self) -> np.ndarray:
+        """(3,) float: where the probe stops if it touches nothing."""
+        return self.origin + self.max_travel * self.direction
+
+    def point_at(self, travel: float) -> np.ndarray:
+        """(3,) float: probe position after ``travel`` metres."""
+        return self.origin + float(travel) * self.direction
+
+    def __hash__(self):
+        return hash((tuple(self.origin), tuple(self.direction), self.max_travel, self.probe_radius))
+
+    def __eq__(self, other):
+        if not isinstance(other, GuardedTouch):
+            return NotImplemented
+        return (np.array_equal(self.origin, other.origin) and np.array_equal(self.direction, other.direction)
+                and self.max_travel == other.max_travel and self.probe_radius == other.probe_radius)
+
+
+@dataclass(frozen=True)
+class HandTouch:
+    """Several guarded touches made at once (e.g. the fingers of a hand closing)."""
+
+    touches: tuple
+    name: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        t = tuple(self.touches)
+        if not t or not all(isinstance(x, GuardedTouch) for x in t):
+            raise ValidationError("HandTouch needs one or more GuardedTouch")
+        object.__setattr__(self, "touches", t)
