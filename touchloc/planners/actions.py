@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import ValidationError
 
-__all__ = ["GuardedTouch", "HandTouch"]
+__all__ = ["GuardedTouch", "HandTouch", "TouchResult"]
 
 
 @dataclass(frozen=True)
@@ -85,3 +85,34 @@ class HandTouch:
         if not t or not all(isinstance(x, GuardedTouch) for x in t):
             raise ValidationError("HandTouch needs one or more GuardedTouch")
         object.__setattr__(self, "touches", t)
+
+
+@dataclass(frozen=True)
+class TouchResult:
+    """What executing a :class:`GuardedTouch` produced (on a real hand or in simulation).
+
+    Parameters
+    ----------
+    touch : GuardedTouch
+    travel : float
+        How far the probe moved (m) before it stopped.
+    contact : Contacts or None
+        The measured contact(s) in the world frame; None when the touch met nothing
+        within ``max_travel``.
+
+    The free space swept is the capsule from ``touch.origin`` to
+    ``touch.point_at(travel)`` with radius ``touch.probe_radius`` (up to the contact).
+    """
+
+    touch: GuardedTouch
+    travel: float
+    contact: object = None  # touchloc.models.Contacts
+
+    @property
+    def hit(self) -> bool:
+        return self.contact is not None
+
+    @property
+    def swept_segment(self):
+        """(start (3,), end (3,)) of the free-space segment the probe travelled."""
+        return self.touch.origin.copy(), self.touch.point_at(self.travel)
