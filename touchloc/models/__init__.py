@@ -2,10 +2,14 @@
 
 from .base import MeasurementModel, SumModel
 from .contacts import Contacts
+from .dynamics import GaussianDynamics
+from .freespace import FreeSpaceModel
+from .integrated import IntegratedProximityModel
 from .mesh import MeshObject, MeshRepairWarning, MeshUnitsWarning
-from .proximity import ProximityModel
+from .proximity import ProximityModel, contacts_in_object_frame
 
 __all__ = [
     "Contacts", "MeshObject", "MeshRepairWarning", "MeshUnitsWarning", "MeasurementModel",
-    "SumModel", "ProximityModel",
+    "SumModel", "ProximityModel", "IntegratedProximityModel", "FreeSpaceModel",
+    "GaussianDynamics", "contacts_in_object_frame",
 ]

@@ -24,7 +24,7 @@ class MeshUnitsWarning(UserWarning):
 
 
 #: Extents (m) outside which a mesh is probably not in metres.
-PLAUSIBLE_EXTENT = (0.005, 2.0)
+PLAUSIBLE_EXTENT = (0.005, 1.0)
 _AREA_EPS = 1e-12  # m^2: faces smaller than this have no usable normal
 
 
