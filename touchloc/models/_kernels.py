@@ -333,11 +333,13 @@ class CandidateGrid:
     tri: np.ndarray
     nrm: np.ndarray
     w: float  # normal weight the lists were built for (0: position-only)
+    adj_off: np.ndarray  # (F+1,) CSR offsets of vertex-adjacent faces (tree order)
+    adj: np.ndarray
 
 
 @nb.njit(parallel=True, **_NB)
-def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
-                plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
+def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
     Q = P.shape[0]
     cost = np.empty(Q)
     face = np.empty(Q, np.int64)
@@ -351,15 +353,30 @@ def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
         iz = int(np.floor((pz - lo[2]) / h))
         best = np.inf
         bf = -1
-        if 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_:
-            cell = (ix * ny_ + iy) * nz_ + iz
+        inside = 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_
+        cell = (ix * ny_ + iy) * nz_ + iz
+        if inside and offsets[cell + 1] > offsets[cell]:
             for j in range(offsets[cell], offsets[cell + 1]):
                 f = ids[j]
                 c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
                 if c < best:
                     best = c
                     bf = f
-        else:  # outside the grid: exact fallback through the tree
+            if descend:
+                # greedy descent over vertex-adjacent faces: on smooth surfaces the face
+                # whose normal best matches lies a few faces away from a sampled winner
+                for _ in range(256):
+                    moved = False
+                    for j in range(adj_off[bf], adj_off[bf + 1]):
+                        g = adj[j]
+                        c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
+                        if c < best:
+                            best = c
+                            bf = g
+                            moved = True
+                    if not moved:
+                        break
+        else:  # outside the grid, or a cell too crowded to list: exact through the tree
             best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                                          px, py, pz, nx, ny, nz, w, np.inf)
         cost[q] = best
@@ -428,8 +445,14 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def build_candidate_grid(tree: BVH, lo, hi, cell: float, w: float, n_normals: int = 64) -> CandidateGrid:
-    """Precompute the candidate lists of every cell of a grid over the box [lo, hi]."""
+def build_candidate_grid(tree: BVH, lo, hi, cell: float, w: float, n_normals: int = 64,
+                         max_list: int = 48) -> CandidateGrid:
+    """Precompute the candidate lists of every cell of a grid over the box [lo, hi].
+
+    Joint cost (w > 0): the winners at the cell centre for ``n_normals`` directions and
+    the closest face. Position only: every face that can be closest in the cell, or an
+    empty list (meaning: use the exact tree) when more than ``max_list`` qualify.
+    """
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
     shape = tuple(int(s) for s in np.maximum(1, np.ceil((hi - lo) / cell)).astype(int))
@@ -448,20 +471,48 @@ def build_candidate_grid(tree: BVH, lo, hi, cell: float, w: float, n_normals: in
         counts = keep.sum(axis=1)
         ids = rows[keep]
     else:
-        cap = 64
-        while True:
-            rows = np.full((len(centres), cap), -1, np.int64)
-            counts = _grid_lists_position(args[0], args[2], args[3], args[4], args[5], args[1],
-                                          args[6], args[7], args[8], args[9], centres,
-                                          0.5 * cell * np.sqrt(3.0), rows, cap)
-            if counts.max() <= cap:
-                break
-            cap = int(counts.max())
+        cap = max_list
+        rows = np.full((len(centres), cap), -1, np.int64)
+        counts = _grid_lists_position(args[0], args[2], args[3], args[4], args[5], args[1],
+                                      args[6], args[7], args[8], args[9], centres,
+                                      0.5 * cell * np.sqrt(3.0), rows, cap)
+        counts = np.where(counts > cap, 0, counts)  # crowded cells: exact fallback
         ids = rows[np.arange(cap)[None, :] < counts[:, None]]
     offsets = np.zeros(len(centres) + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
+    adj_off, adj = tree_adjacency(tree)
     return CandidateGrid(lo=lo, h=float(cell), shape=shape, offsets=offsets, ids=ids.astype(np.int64),
-                         tri=tree.tri, nrm=tree.nrm, w=float(w))
+                         tri=tree.tri, nrm=tree.nrm, w=float(w), adj_off=adj_off, adj=adj)
+
+
+def tree_adjacency(tree: BVH):
+    """CSR lists of the faces sharing a vertex with each face, in tree order."""
+    tri = tree.tri.reshape(-1, 3)
+    _, vid = np.unique(np.round(tri, 12), axis=0, return_inverse=True)
+    vid = vid.reshape(-1, 3)
+    F = len(vid)
+    # vertex -> faces, then face -> faces through its three vertices
+    vf_v = vid.ravel()
+    vf_f = np.repeat(np.arange(F), 3)
+    order = np.argsort(vf_v, kind="stable")
+    vf_v, vf_f = vf_v[order], vf_f[order]
+    voff = np.searchsorted(vf_v, np.arange(vid.max() + 2))
+    pairs_a, pairs_b = [], []
+    for k in range(3):
+        v = vid[:, k]
+        n = voff[v + 1] - voff[v]
+        a = np.repeat(np.arange(F), n)
+        idx = np.repeat(voff[v], n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+        pairs_a.append(a)
+        pairs_b.append(vf_f[idx])
+    a = np.concatenate(pairs_a)
+    b = np.concatenate(pairs_b)
+    keep = a != b
+    key = np.unique(a[keep] * F + b[keep])
+    a, b = key // F, key % F
+    off = np.zeros(F + 1, np.int64)
+    np.cumsum(np.bincount(a, minlength=F), out=off[1:])
+    return off, b.astype(np.int64)
 
 
 def query_grid(grid: CandidateGrid, tree: BVH, P, N):
@@ -475,6 +526,7 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
     f, c = _grid_query(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2],
-                       grid.offsets, grid.ids, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left,
-                       tree.right, tree.start, tree.count, P, Nn, grid.w if use_n else 0.0, use_n)
+                       grid.offsets, grid.ids, grid.adj_off, grid.adj, tree.plo, tree.phi, tree.nlo,
+                       tree.nhi, tree.left, tree.right, tree.start, tree.count, P, Nn,
+                       grid.w if use_n else 0.0, use_n, use_n)
     return tree.face_id[f], c
