@@ -1,1 +1,25 @@
-"""touchloc.dnf"""
+"""Dynamic neural fields and the orientation tracker of seed 000.
+
+A rotating object's orientation and shape (its flat sides) are estimated from contact
+normals and the hand's odometry: :class:`OrientationTracker` implements the model of
+seed 000 (Fig. 2), :func:`count_surfaces` its rule for counting sides. The baselines of
+seed 000, section V (:class:`HistogramEstimator`, the tracker with ``correct=False``), a
+Rao-Blackwellised particle filter (:class:`ParticleOrientationEstimator`), a generator of
+the seed's experiment and a loader for recorded data complete the comparison.
+"""
+
+from .data import (OBJECTS, RotationDataset, generate_rotation_dataset, load_recording, save_recording,
+                   standard_datasets)
+from .estimators import HistogramEstimator, count_surfaces, normalize_max, surface_peaks
+from .fields import (Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, diagonal_sum, expand,
+                     lateral_kernel, sigmoid)
+from .tracker import OrientationTracker, TrackerParams, population_code
+
+__all__ = [
+    "OrientationTracker", "TrackerParams", "count_surfaces", "surface_peaks", "HistogramEstimator",
+    "normalize_max", "population_code",
+    "Field1D", "Field2D", "FieldParams", "MemoryTrace", "sigmoid", "lateral_kernel", "circular_convolve",
+    "expand", "diagonal_sum",
+    "RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording", "save_recording",
+    "OBJECTS",
+]

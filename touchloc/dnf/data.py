@@ -1,0 +1,346 @@
+"""Rotation data sets: the simulated experiment of seed 000 (section IV) and recorded data.
+
+A data set is a sequence of ``T`` samples. Sample ``t`` has a time stamp, the hand's
+odometry (its own estimate of the object's accumulated rotation, rad) and the angles of
+the contact normals measured in that sample (rad, world frame; any number >= 1), such
+that ``world angle = object-frame angle + rotation``.
+
+File format
+-----------
+CSV (long format, one row per contact normal; ``#`` lines are comments)::
+
+    time,odometry,normal_angle[,true_orientation]
+    0.0,0.0,1.0472
+    0.0,0.0,1.0490
+    0.41,0.0698,1.1170
+    ...
+
+Rows with the same ``time`` form one sample (they must be consecutive and share the
+odometry). Angles are in radians. ``true_orientation`` (optional) is the ground truth,
+used only for error plots.
+
+NPZ: arrays ``time (T,)``, ``odometry (T,)``, ``normal_angles (M,)`` and
+``sample_index (M,)`` (int, the sample each normal belongs to, non-decreasing), optionally
+``true_orientation (T,)`` and the scalars ``n_surfaces`` and ``name``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._util import as_rng
+from ..errors import ValidationError
+
+__all__ = ["RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording",
+           "save_recording", "OBJECTS"]
+
+TWO_PI = 2.0 * np.pi
+
+#: the three objects of seed 000, section IV: number of flat sides (0: round cylinder)
+OBJECTS = {"6-gon": 6, "8-gon": 8, "round": 0}
+
+
+@dataclass
+class RotationDataset:
+    """A sequence of contact-normal samples during in-hand rotation.
+
+    Attributes
+    ----------
+    time : (T,) float
+        Sample times, s.
+    odometry : (T,) float
+        The hand's estimate of the accumulated rotation, rad.
+    normal_angles : (M,) float
+        All contact-normal angles, rad, world frame.
+    sample_index : (M,) int
+        Sample each normal belongs to (non-decreasing, every sample has at least one).
+    true_orientation : (T,) float or None
+        Ground-truth rotation (simulated data), rad.
+    n_surfaces : int or None
+        Number of flat sides of the object if known (0 for a round object).
+    name : str
+    """
+
+    time: np.ndarray
+    odometry: np.ndarray
+    normal_angles: np.ndarray
+    sample_index: np.ndarray
+    true_orientation: np.ndarray | None = None
+    n_surfaces: int | None = None
+    name: str = ""
+    _splits: list = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self):
+        self.time = np.asarray(self.time, dtype=np.float64)
+        self.odometry = np.asarray(self.odometry, dtype=np.float64)
+        self.normal_angles = np.asarray(self.normal_angles, dtype=np.float64)
+        self.sample_index = np.asarray(self.sample_index)
+        T = self.time.shape[0] if self.time.ndim == 1 else -1
+        if self.time.ndim != 1 or T == 0:
+            raise ValidationError(f"time must be a non-empty 1-D array, got shape {self.time.shape}")
+        if self.odometry.shape != (T,):
+            raise ValidationError(f"odometry must have shape ({T},) like time, got {self.odometry.shape}")
+        if self.normal_angles.ndim != 1 or self.sample_index.shape != self.normal_angles.shape:
+            raise ValidationError(f"normal_angles and sample_index must be 1-D of equal length, got "
+                                  f"{self.normal_angles.shape} and {self.sample_index.shape}")
+        if self.sample_index.size and not np.issubdtype(self.sample_index.dtype, np.integer):
+            raise ValidationError(f"sample_index must be integers, got dtype {self.sample_index.dtype}")
+        self.sample_index = self.sample_index.astype(np.int64)
+        for name in ("time", "odometry", "normal_angles"):
+            a = getattr(self, name)
+            if not np.all(np.isfinite(a)):
+                bad = int(np.flatnonzero(~np.isfinite(a))[0])
+                raise ValidationError(f"{name} must be finite, entry {bad} is {a[bad]}")
+        if np.any(np.diff(self.sample_index) < 0):
+            raise ValidationError("sample_index must be non-decreasing (normals grouped by sample)")
+        counts = np.bincount(self.sample_index, minlength=T) if self.sample_index.size else np.zeros(T, int)
+        if self.sample_index.size and (self.sample_index[0] < 0 or self.sample_index[-1] >= T):
+            raise ValidationError(f"sample_index must lie in [0, {T - 1}]")
+        if np.any(counts[:T] == 0):
+            raise ValidationError(f"every sample needs at least one normal angle; sample "
+                                  f"{int(np.flatnonzero(counts[:T] == 0)[0])} has none")
+        if self.true_orientation is not None:
+            self.true_orientation = np.asarray(self.true_orientation, dtype=np.float64)
+            if self.true_orientation.shape != (T,):
+                raise ValidationError(f"true_orientation must have shape ({T},), got {self.true_orientation.shape}")
+        self._splits = np.split(self.normal_angles, np.cumsum(counts)[:-1])
+
+    def __len__(self) -> int:
+        return self.time.shape[0]
+
+    def samples(self):
+        """Iterate ``(normal_angles (K_t,), odometry)`` per sample."""
+        return zip(self._splits, self.odometry.tolist())
+
+    def angles(self, t: int) -> np.ndarray:
+        """Normal angles of sample ``t``, (K_t,) rad."""
+        return self._splits[t]
+
+    def __repr__(self) -> str:
+        return (f"RotationDataset({self.name!r}, {len(self)} samples, {self.normal_angles.size} normals, "
+                f"{np.degrees(self.odometry[-1] - self.odometry[0]):.0f} deg odometry)")
+
+
+def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz=(2.0, 3.0),
+                              diameter: float = 0.04, under_estimate=(0.04, 0.08),
+                              slip_std: float = np.radians(1.5), stroke=(np.radians(25), np.radians(40)),
+                              step=np.radians(4.0), face_fraction: float = 0.6, name: str = "",
+                              rng=None) -> RotationDataset:
+    """Simulate the rotation experiment of seed 000, section IV.
+
+    An object with ``n_sides`` flat sides (a regular n-gon cylinder; 0 for a round one;
+    4 cm across as in seed 000) turns on a fixed axis between two curved fingers on
+    opposite sides. The hand turns it in strokes: it grasps, turns it by ``stroke`` while
+    the fingers roll with it, releases and regrasps at the point-symmetric position
+    (seed 000, Fig. 3). Each sample (2-3 Hz) holds the normals of the tactile elements in
+    contact:
+
+    - a finger that lands on a flat side measures that side's normal, sharply (12
+      elements, 2 degrees spread) - it rotates with the object during the stroke;
+    - a finger that lands on an edge rolls over it and measures a broad spread of normals
+      (6 elements spread over 80 % of the angle between the two sides);
+    - on the round cylinder the contact normal points at the finger (world frame), so
+      it sweeps through the object frame; 6 elements, 8 degrees spread.
+
+    The odometry under-estimates each stroke's rotation by a factor drawn from
+    ``under_estimate`` per data set (seed 000, II-B: "a strong tendency of systematically
+    underestimating the object rotation"), and every release/regrasp turns the object by
+    an unobserved ``N(0, slip_std)``.
+
+    Parameters
+    ----------
+    n_sides : int
+        Number of flat sides (>= 3), or 0 for a round cylinder.
+    revolutions : float
+        Total true rotation in turns (seed 000: four times 360 degrees).
+    rate_hz : (float, float)
+        Range of the sampling rate; each interval is drawn uniformly from it.
+    diameter : float
+        Object diameter, m (metadata; the normals do not depend on it).
+    under_estimate : (float, float)
+        Range of the odometry's relative under-estimate of rotation.
+    slip_std : float
+        Standard deviation of the unobserved rotation at each regrasp, rad.
+    stroke : (float, float)
+        Range of the rotation per stroke, rad.
+    step : float
+        Mean rotation per sample, rad.
+    face_fraction : float
+        Fraction of the angle between two side normals in which a finger lands on the
+        side rather than on an edge.
+    name : str
+        Label of the data set.
+    rng : None, int or numpy Generator
+
+    Returns
+    -------
+    RotationDataset
+    """
+    if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
+        raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
+    if not (np.isfinite(revolutions) and revolutions > 0):
+        raise ValidationError(f"revolutions must be positive, got {revolutions!r}")
+    rng = as_rng(rng)
+    bias = rng.uniform(*under_estimate)
+    total = TWO_PI * revolutions
+    times, odo, truth, angles, index = [], [], [], [], []
+    theta, est, t = 0.0, 0.0, 0.0
+    k = 0
+    half = np.pi / n_sides if n_sides else 0.0
+    while theta < total:
+        # regrasp: unobserved slip, fingers land near the point-symmetric position
+        theta += rng.normal(0.0, slip_std)
+        psi = np.array([0.0, np.pi]) + rng.normal(0.0, np.radians(3.0), 2)
+        contact = []
+        for p in psi:
+            if n_sides:
+                rel = p - theta
+                j = np.round(rel / (2 * half))
+                delta = (rel - j * 2 * half + np.pi) % TWO_PI - np.pi
+                if abs(delta) < face_fraction * half:
+                    contact.append(("face", j * 2 * half))
+                else:
+                    e = j * 2 * half + np.sign(delta) * half
+                    contact.append(("edge", e))
+            else:
+                contact.append(("round", p))
+        rot = rng.uniform(*stroke)
+        n_steps = max(2, int(round(rot / step)))
+        for s in range(n_steps):
+            d = rot / n_steps * rng.uniform(0.7, 1.3) if s else 0.0
+            theta += d
+            est += d * (1.0 - bias) + rng.normal(0.0, np.radians(0.2)) * (d > 0)
+            t += 1.0 / rng.uniform(*rate_hz)
+            parts = []
+            for kind, a in contact:
+                if kind == "face":
+                    tilt = rng.normal(0.0, np.radians(1.0))
+                    parts.append(a + theta + tilt + rng.normal(0.0, np.radians(2.0), 12))
+                elif kind == "edge":
+                    parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, 6)
+                                 + rng.normal(0.0, np.radians(2.0), 6))
+                else:
+                    parts.append(a + rng.normal(0.0, np.radians(8.0), 6))
+            a = np.concatenate(parts)
+            angles.append(a)
+            index.append(np.full(a.size, k))
+            times.append(t)
+            odo.append(est)
+            truth.append(theta)
+            k += 1
+    normals = (np.concatenate(angles) + np.pi) % TWO_PI - np.pi
+    return RotationDataset(np.array(times), np.array(odo), normals, np.concatenate(index),
+                           true_orientation=np.array(truth), n_surfaces=int(n_sides),
+                           name=name or (f"{n_sides}-gon" if n_sides else "round"))
+
+
+def standard_datasets(objects=("6-gon", "8-gon", "round"), n_per_object: int = 5, *, seed: int = 0,
+                      **kwargs) -> dict:
+    """The data sets of seed 000's experiment: ``n_per_object`` per object, different seeds.
+
+    Returns
+    -------
+    dict
+        ``{object name: [RotationDataset, ...]}``; data set ``i`` of object ``o`` uses the
+        seed ``(seed, index of o in OBJECTS, i)``.
+    """
+    names = list(OBJECTS)
+    out = {}
+    for obj in objects:
+        if obj not in OBJECTS:
+            raise ValidationError(f"unknown object {obj!r}, expected one of {names}")
+        out[obj] = [generate_rotation_dataset(OBJECTS[obj], name=f"{obj} #{i + 1}",
+                                              rng=np.random.default_rng([seed, names.index(obj), i]), **kwargs)
+                    for i in range(n_per_object)]
+    return out
+
+
+def save_recording(ds: RotationDataset, path) -> Path:
+    """Write a data set as ``.csv`` or ``.npz`` (chosen by the suffix); returns the path."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        extra = {}
+        if ds.true_orientation is not None:
+            extra["true_orientation"] = ds.true_orientation
+        if ds.n_surfaces is not None:
+            extra["n_surfaces"] = np.int64(ds.n_surfaces)
+        np.savez(path, time=ds.time, odometry=ds.odometry, normal_angles=ds.normal_angles,
+                 sample_index=ds.sample_index, name=np.str_(ds.name), **extra)
+    elif path.suffix == ".csv":
+        truth = ds.true_orientation is not None
+        with open(path, "w", newline="") as fh:
+            if ds.name:
+                fh.write(f"# name: {ds.name}\n")
+            if ds.n_surfaces is not None:
+                fh.write(f"# n_surfaces: {ds.n_surfaces}\n")
+            w = csv.writer(fh)
+            w.writerow(["time", "odometry", "normal_angle"] + (["true_orientation"] if truth else []))
+            for i, a in zip(ds.sample_index.tolist(), ds.normal_angles.tolist()):
+                row = [repr(float(ds.time[i])), repr(float(ds.odometry[i])), repr(a)]
+                if truth:
+                    row.append(repr(float(ds.true_orientation[i])))
+                w.writerow(row)
+    else:
+        raise ValidationError(f"recording path must end in .csv or .npz, got {path.name!r}")
+    return path
+
+
+def load_recording(path) -> RotationDataset:
+    """Load a recorded data set from ``.csv`` or ``.npz`` (format in the module docs).
+
+    Raises
+    ------
+    ValidationError
+        If the file is missing, empty, lacks a column or holds non-finite values.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ValidationError(f"no recording at {path}")
+    if path.suffix == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("time", "odometry", "normal_angles", "sample_index") if k not in z]
+            if missing:
+                raise ValidationError(f"{path.name} lacks arrays {missing}; expected time, odometry, "
+                                      "normal_angles, sample_index")
+            return RotationDataset(z["time"], z["odometry"], z["normal_angles"], z["sample_index"],
+                                   true_orientation=z["true_orientation"] if "true_orientation" in z else None,
+                                   n_surfaces=int(z["n_surfaces"]) if "n_surfaces" in z else None,
+                                   name=str(z["name"]) if "name" in z else path.stem)
+    if path.suffix != ".csv":
+        raise ValidationError(f"recording path must end in .csv or .npz, got {path.name!r}")
+    meta, lines = {}, []
+    for line in path.read_text().splitlines():
+        if line.startswith("#"):
+            if ":" in line:
+                k, v = line[1:].split(":", 1)
+                meta[k.strip()] = v.strip()
+        elif line.strip():
+            lines.append(line)
+    if len(lines) < 2:
+        raise ValidationError(f"{path.name} holds no samples (expected a header and at least one row)")
+    reader = csv.DictReader(io.StringIO("\n".join(lines)))
+    cols = [c.strip() for c in (reader.fieldnames or [])]
+    for c in ("time", "odometry", "normal_angle"):
+        if c not in cols:
+            raise ValidationError(f"{path.name} lacks column {c!r}; header is {cols}")
+    try:
+        rows = np.array([[float(r[c]) for c in cols] for r in reader], dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"{path.name}: every value must be a number: {exc}") from None
+    col = {c: rows[:, i] for i, c in enumerate(cols)}
+    t = col["time"]
+    new = np.r_[True, t[1:] != t[:-1]]
+    sample_index = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    odo = col["odometry"]
+    if np.any(odo != odo[first][sample_index]):
+        raise ValidationError(f"{path.name}: rows of one sample (same time) must share the odometry")
+    truth = col["true_orientation"][first] if "true_orientation" in col else None
+    n_surf = int(meta["n_surfaces"]) if "n_surfaces" in meta else None
+    return RotationDataset(t[first], odo[first], col["normal_angle"], sample_index, true_orientation=truth,
+                           n_surfaces=n_surf, name=meta.get("name", path.stem))

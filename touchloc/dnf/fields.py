@@ -1,0 +1,512 @@
+"""Dynamic neural fields over a periodic feature dimension (seed 000, eq. 1 and eq. 2).
+
+A field holds an activation ``u`` at ``n`` sites spaced evenly over one period
+(``2 pi`` for orientation) and evolves by eq. 1 of seed 000::
+
+    tau du/dt = -u + h + S + sum_x' f(u(x')) w(|x - x'|)
+
+with the sigmoid ``f(u) = 1 / (1 + exp(-beta u))`` and the lateral kernel::
+
+    w(d) = c_exc exp(-d^2 / (2 sigma_exc^2)) - c_inh exp(-d^2 / (2 sigma_inh^2)) - c_glob
+
+(short-range excitation, long-range inhibition and an optional global inhibition).
+Distances ``d`` are periodic, so a peak at 359 degrees interacts with one at 1 degree.
+The integral of eq. 1 is a sum over sites (``dx`` is one site), so ``c_exc``, ``c_inh`` and
+``c_glob`` are weights per active site; widths are in radians. The convolution is computed
+with the FFT (exact circular convolution).
+
+Time is integrated with the explicit Euler method: ``u <- u + dt / tau * (...)``. The
+step ``dt`` is a constructor argument; the :class:`~touchloc.dnf.OrientationTracker` uses
+``dt = 1`` with time measured in samples (one sample of contact normals per step).
+
+The memory trace (eq. 2, after [27] of seed 000) is::
+
+    tau_l dP/dt = lambda_build (-P + f) f - lambda_decay P (1 - f)
+
+so it builds up towards ``f`` where the field's output ``f`` is high (at rate
+``lambda_build / tau_l``) and decays where the output is low (at rate
+``lambda_decay / tau_l``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = [
+    "FieldParams",
+    "sigmoid",
+    "periodic_distance",
+    "lateral_kernel",
+    "circular_convolve",
+    "Field1D",
+    "Field2D",
+    "MemoryTrace",
+    "expand",
+    "diagonal_sum",
+    "site_angles",
+]
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class FieldParams:
+    """Parameters of one field of eq. 1 (seed 000).
+
+    Attributes
+    ----------
+    tau : float
+        Time constant, in the unit of ``dt``.
+    h : float
+        Resting level (negative: no output without input).
+    beta : float
+        Slope of the sigmoid ``f(u) = 1 / (1 + exp(-beta u))``.
+    c_exc, sigma_exc : float
+        Strength (per active site) and width (rad) of the short-range excitation.
+    c_inh, sigma_inh : float
+        Strength (per active site) and width (rad) of the long-range inhibition.
+    c_glob : float
+        Global inhibition per active site (0 for none).
+    """
+
+    tau: float = 1.0
+    h: float = -5.0
+    beta: float = 4.0
+    c_exc: float = 0.0
+    sigma_exc: float = np.radians(3.0)
+    c_inh: float = 0.0
+    sigma_inh: float = np.radians(20.0)
+    c_glob: float = 0.0
+
+    def __post_init__(self):
+        for name in ("tau", "beta", "sigma_exc", "sigma_inh"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValidationError(f"FieldParams.{name} must be a positive finite number, got {v!r}")
+        for name in ("h", "c_exc", "c_inh", "c_glob"):
+            v = getattr(self, name)
+            if not np.isfinite(v):
+                raise ValidationError(f"FieldParams.{name} must be finite, got {v!r}")
+
+    def with_(self, **changes) -> "FieldParams":
+        """A copy with some parameters changed."""
+        return replace(self, **changes)
+
+
+def sigmoid(u, beta: float = 4.0):
+    """Output non-linearity ``f(u) = 1 / (1 + exp(-beta u))`` (overflow-free, via tanh).
+
+    Parameters
+    ----------
+    u : (...) float
+        Activation.
+    beta : float
+        Slope.
+
+    Returns
+    -------
+    (...) float
+        Output in [0, 1], same dtype as ``u`` for float inputs.
+    """
+    u = np.asarray(u)
+    half = u.dtype.type(0.5) if u.dtype.kind == "f" else 0.5
+    out = np.tanh(u * (half * beta))
+    out *= half
+    out += half
+    return out
+
+
+def site_angles(n: int, period: float = TWO_PI) -> np.ndarray:
+    """Feature value of each of ``n`` sites: ``period * i / n``; returns (n,) float."""
+    return np.arange(n) * (period / n)
+
+
+def periodic_distance(n: int, period: float = TWO_PI) -> np.ndarray:
+    """Periodic distance of site ``i`` from site 0, ``min(i, n - i) * period / n``; (n,) float."""
+    i = np.arange(n)
+    return np.minimum(i, n - i) * (period / n)
+
+
+def lateral_kernel(n: int, params: FieldParams, period: float = TWO_PI) -> np.ndarray:
+    """Lateral kernel ``w`` of eq. 1 sampled at the periodic distances of ``n`` sites.
+
+    Returns
+    -------
+    (n,) float
+        ``w[i]`` is the weight from a site to the site ``i`` places away (either side).
+    """
+    d = periodic_distance(n, period)
+    w = params.c_exc * np.exp(-0.5 * (d / params.sigma_exc) ** 2)
+    if params.c_inh:
+        w = w - params.c_inh * np.exp(-0.5 * (d / params.sigma_inh) ** 2)
+    if params.c_glob:
+        w = w - params.c_glob
+    return w
+
+
+def circular_convolve(x, kernel_fft, n: int) -> np.ndarray:
+    """Circular convolution of (..., n) ``x`` with a kernel given by its rfft; (..., n)."""
+    return np.fft.irfft(np.fft.rfft(x, axis=-1) * kernel_fft, n=n, axis=-1)
+
+
+def _check_n(n) -> int:
+    if not isinstance(n, (int, np.integer)) or n < 3:
+        raise ValidationError(f"number of sites must be an int >= 3, got {n!r}")
+    return int(n)
+
+
+class Field1D:
+    """A periodic 1-D dynamic neural field (eq. 1 of seed 000), integrated with Euler steps.
+
+    Parameters
+    ----------
+    n : int
+        Number of sites over one period.
+    params : FieldParams
+        Time constant, resting level, sigmoid slope and kernel.
+    dt : float
+        Euler time step (same unit as ``params.tau``).
+    period : float
+        Length of the feature dimension (default ``2 pi``: orientation).
+
+    Attributes
+    ----------
+    u : (n,) float
+        Activation, initially at the resting level ``h``.
+    """
+
+    def __init__(self, n: int = 360, params: FieldParams | None = None, *, dt: float = 1.0,
+                 period: float = TWO_PI):
+        self.n = _check_n(n)
+        self.params = params if params is not None else FieldParams()
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValidationError(f"dt must be a positive finite number, got {dt!r}")
+        self.dt = float(dt)
+        self.period = float(period)
+        self.kernel = lateral_kernel(self.n, self.params, self.period)
+        self._kernel_fft = np.fft.rfft(self.kernel)
+        self._rate = self.dt / self.params.tau
+        self.u = np.full(self.n, self.params.h, dtype=np.float64)
+
+    def reset(self) -> None:
+        """Set the activation back to the resting level."""
+        self.u.fill(self.params.h)
+
+    def output(self) -> np.ndarray:
+        """Field output ``f(u)``, (n,) float in [0, 1]."""
+        return sigmoid(self.u, self.params.beta)
+
+    def lateral(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Lateral input ``sum_x' f(u(x')) w(|x - x'|)``, (n,) float."""
+        if out is None:
+            out = self.output()
+        return circular_convolve(out, self._kernel_fft, self.n)
+
+    def step(self, stimulus=0.0) -> np.ndarray:
+        """Advance one Euler step of eq. 1 with external input ``stimulus``.
+
+        Parameters
+        ----------
+        stimulus : float or (n,) float
+            External input ``S``.
+
+        Returns
+        -------
+        (n,) float
+            The output ``f(u)`` after the step.
+        """
+        p = self.params
+        du = -self.u + p.h + stimulus + self.lateral()
+        self.u += self._rate * du
+        return self.output()
+
+    def peak_position(self, threshold: float = 0.5):
+        """Circular centroid (rad) of the sites whose output exceeds ``threshold``, or None."""
+        f = self.output()
+        w = np.where(f > threshold, f, 0.0)
+        if not w.any():
+            return None
+        ang = site_angles(self.n, self.period) * (TWO_PI / self.period)
+        z = np.sum(w * np.exp(1j * ang))
+        return float(np.angle(z) % TWO_PI) * self.period / TWO_PI
+
+
+class Field2D:
+    """A 2-D dynamic neural field, periodic in both dimensions (eq. 1 with x in R^2).
+
+    The lateral kernel is ``c_exc g_exc(dx) g_exc(dy) - c_inh g_inh(dx) g_inh(dy) - c_glob``
+    with Gaussians ``g(d) = exp(-d^2 / (2 sigma^2))`` of periodic distance: every term is
+    separable. Two ways to compute the lateral input are offered:
+
+    ``method="fft"``
+        exact circular 2-D convolution;
+    ``method="active"`` (default)
+        the separable terms are applied only to the rows and columns that hold an active
+        site (output above ``eps``) as two matrix products, and the global term uses the
+        exact sum; each Gaussian term is evaluated where it exceeds 1e-8 of its peak (its
+        reach around the active block). Sites with output below ``eps`` are left out, so
+        the lateral input differs from the exact one by at most
+        ``eps * (c_exc * G_exc**2 + c_inh * G_inh**2)`` with ``G = sum_d g(d)`` (about
+        ``sqrt(2 pi) sigma`` in sites): below 1e-3 for the tracker's comparison field
+        with ``eps = 1e-6``. When more than ``max_active`` rows or columns are active it
+        falls back to the FFT.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Sites along each dimension.
+    params : FieldParams
+        Time constant, resting level, sigmoid slope and kernel (widths in rad).
+    dt : float
+        Euler time step.
+    dtype : numpy dtype
+        float32 (default, fast) or float64.
+    method : {"active", "fft"}
+    eps : float
+        Output below which a site counts as inactive for ``method="active"``.
+    max_active : int
+        Largest number of active rows or columns handled by ``method="active"``.
+
+    Attributes
+    ----------
+    u : shape float
+        Activation, initially at the resting level.
+    """
+
+    def __init__(self, shape=(360, 360), params: FieldParams | None = None, *, dt: float = 1.0,
+                 period: float = TWO_PI, dtype=np.float32, method: str = "active", eps: float = 1e-6,
+                 max_active: int = 96):
+        if len(shape) != 2:
+            raise ValidationError(f"shape must be (n0, n1), got {shape!r}")
+        self.shape = (_check_n(shape[0]), _check_n(shape[1]))
+        self.params = params if params is not None else FieldParams()
+        if method not in ("active", "fft"):
+            raise ValidationError(f"method must be 'active' or 'fft', got {method!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValidationError(f"dt must be a positive finite number, got {dt!r}")
+        self.method = method
+        self.dtype = np.dtype(dtype)
+        self.dt = float(dt)
+        self.period = float(period)
+        self.eps = float(eps)
+        self.max_active = int(max_active)
+        p = self.params
+        self._rate = self.dtype.type(self.dt / p.tau)
+        self._h = self.dtype.type(p.h)
+        # separable factors: (n, n) circulant Gaussian matrices
+        self._terms = []
+        for c, s in ((p.c_exc, p.sigma_exc), (-p.c_inh, p.sigma_inh)):
+            if c:
+                g0 = np.exp(-0.5 * (periodic_distance(self.shape[0], period) / s) ** 2)
+                g1 = np.exp(-0.5 * (periodic_distance(self.shape[1], period) / s) ** 2)
+                self._terms.append((c, g0, g1))
+        self._c_glob = p.c_glob
+        k0 = sum(c * np.outer(g0, g1) for c, g0, g1 in self._terms) if self._terms else np.zeros(self.shape)
+        self.kernel = k0 - p.c_glob
+        self._kernel_fft = np.fft.rfft2(self.kernel)
+        self._idx0 = np.arange(self.shape[0])
+        self._idx1 = np.arange(self.shape[1])
+        # circulant matrices for the active method: M0[i, j] = g0[(i - j) % n0]
+        # and the reach (in sites) beyond which a term is below 1e-8 of its peak
+        self._circ = [(self.dtype.type(c), _circulant(g0).astype(self.dtype), _circulant(g1).astype(self.dtype),
+                       _reach(g0), _reach(g1)) for c, g0, g1 in self._terms]
+        # output level below eps, in activation units: f(u) < eps  <=>  u < u_eps
+        self._eps_t = self.dtype.type(self.eps)
+        self._u = np.full(self.shape, p.h, dtype=self.dtype)
+        self._out = None
+
+    @property
+    def u(self) -> np.ndarray:
+        """Activation, shape float. Assign a new array (``field.u = a``) rather than
+        writing into it in place, so that the cached output is recomputed."""
+        return self._u
+
+    @u.setter
+    def u(self, value) -> None:
+        value = np.asarray(value, dtype=self.dtype)
+        if value.shape != self.shape:
+            raise ValidationError(f"u must have shape {self.shape}, got {value.shape}")
+        self._u = value.copy()
+        self._out = None
+
+    def reset(self) -> None:
+        """Set the activation back to the resting level."""
+        self._u.fill(self._h)
+        self._out = None
+
+    def output(self) -> np.ndarray:
+        """Field output ``f(u)``, shape float in [0, 1] (cached between steps; read-only)."""
+        if self._out is None:
+            self._out = sigmoid(self._u, self.params.beta)
+            self._out.flags.writeable = False
+        return self._out
+
+    def lateral(self, out: np.ndarray | None = None, method: str | None = None) -> np.ndarray:
+        """Lateral input of eq. 1, shape float (see the class notes for the methods)."""
+        if out is None:
+            out = self.output()
+        method = method or self.method
+        if method == "active":
+            rows = np.flatnonzero(out.max(axis=1) > self._eps_t)
+            glob = self.dtype.type(-self._c_glob * float(out.sum(dtype=np.float64))) if self._c_glob else 0
+            res = np.full(self.shape, glob, dtype=self.dtype)
+            if rows.size == 0:
+                return res
+            cols = np.flatnonzero(out[rows].max(axis=0) > self._eps_t)
+            if rows.size <= self.max_active and cols.size <= self.max_active:
+                block = out[np.ix_(rows, cols)]
+                for c, m0, m1, r0, r1 in self._circ:
+                    w0 = _dilate(rows, r0, self.shape[0])
+                    w1 = _dilate(cols, r1, self.shape[1])
+                    part = (m0[np.ix_(w0, rows)] @ block) @ (m1[np.ix_(cols, w1)] * c)
+                    if w0.size == self.shape[0] and w1.size == self.shape[1]:
+                        res += part
+                    else:
+                        res[np.ix_(w0, w1)] += part
+                return res
+        lat = np.fft.irfft2(np.fft.rfft2(out) * self._kernel_fft, s=self.shape)
+        return lat.astype(self.dtype, copy=False)
+
+    def step(self, stimulus=0.0) -> np.ndarray:
+        """Advance one Euler step of eq. 1 with external input ``stimulus``.
+
+        Parameters
+        ----------
+        stimulus : float, array broadcastable to ``shape``, or tuple of them
+            External input; a tuple is summed term by term without forming the full sum
+            first, e.g. ``(a[:, None], b[None, :])`` for two expanded 1-D fields.
+
+        Returns
+        -------
+        shape float
+            The output ``f(u)`` after the step.
+        """
+        lat = self.lateral(self.output())
+        # u += rate * (-u + h + S + lat), in place
+        for term in (stimulus if isinstance(stimulus, tuple) else (stimulus,)):
+            lat += term
+        lat += self._h
+        lat -= self._u
+        lat *= self._rate
+        self._u += lat
+        self._out = None
+        return self.output()
+
+
+def _reach(g: np.ndarray) -> int:
+    """Largest site offset at which the periodic Gaussian ``g`` is still above 1e-8."""
+    big = np.flatnonzero(g[: g.shape[0] // 2 + 1] > 1e-8)
+    return int(big[-1])
+
+
+def _dilate(idx: np.ndarray, r: int, n: int) -> np.ndarray:
+    """Sorted sites within ``r`` (periodic) of any site in ``idx``."""
+    if idx.size * (2 * r + 1) >= n:
+        m = np.zeros(n, dtype=bool)
+        m[((idx[:, None] + np.arange(-r, r + 1)[None, :]) % n).ravel()] = True
+        return np.flatnonzero(m)
+    return np.unique((idx[:, None] + np.arange(-r, r + 1)[None, :]) % n)
+
+
+def _circulant(g: np.ndarray) -> np.ndarray:
+    n = g.shape[0]
+    i = np.arange(n)
+    return g[(i[:, None] - i[None, :]) % n]
+
+
+class MemoryTrace:
+    """Memory trace of eq. 2 (seed 000) over the sites of a field.
+
+    Parameters
+    ----------
+    n : int
+        Number of sites.
+    tau : float
+        Time constant ``tau_l``.
+    build, decay : float
+        Rates ``lambda_build`` and ``lambda_decay``.
+    dt : float
+        Euler time step.
+
+    Attributes
+    ----------
+    P : (n,) float
+        Strength of the trace, in [0, 1], initially 0.
+    """
+
+    def __init__(self, n: int = 360, *, tau: float = 1.0, build: float = 0.05, decay: float = 0.001,
+                 dt: float = 1.0):
+        self.n = _check_n(n)
+        for name, v in (("tau", tau), ("dt", dt)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValidationError(f"{name} must be a positive finite number, got {v!r}")
+        for name, v in (("build", build), ("decay", decay)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValidationError(f"{name} must be a non-negative finite number, got {v!r}")
+        if dt * max(build, decay) / tau > 1.0:
+            raise ValidationError(f"dt * max(build, decay) / tau must be <= 1 for a stable Euler step, "
+                                  f"got {dt * max(build, decay) / tau:g}")
+        self.tau, self.build, self.decay, self.dt = float(tau), float(build), float(decay), float(dt)
+        self.P = np.zeros(self.n)
+
+    def reset(self) -> None:
+        """Erase the trace."""
+        self.P.fill(0.0)
+
+    def step(self, f) -> np.ndarray:
+        """One Euler step of eq. 2 given the field output ``f`` ((n,) in [0, 1]); returns ``P``."""
+        P = self.P
+        dP = self.build * (f - P) * f - self.decay * P * (1.0 - f)
+        P += (self.dt / self.tau) * dP
+        return P
+
+
+def expand(field, n_other: int, axis: int = 0) -> np.ndarray:
+    """Expand a 1-D field along a second dimension (a read-only broadcast view).
+
+    Parameters
+    ----------
+    field : (n,) float
+    n_other : int
+        Length of the new dimension.
+    axis : {0, 1}
+        Which axis of the result ``field`` runs along: 0 gives ``out[i, j] = field[i]``
+        (shape (n, n_other)); 1 gives ``out[i, j] = field[j]`` (shape (n_other, n)), i.e.
+        the transposed expansion.
+    """
+    field = np.asarray(field)
+    if field.ndim != 1:
+        raise ValidationError(f"field must be 1-D, got shape {field.shape}")
+    if axis == 0:
+        return np.broadcast_to(field[:, None], (field.shape[0], n_other))
+    if axis == 1:
+        return np.broadcast_to(field[None, :], (n_other, field.shape[0]))
+    raise ValidationError(f"axis must be 0 or 1, got {axis!r}")
+
+
+def diagonal_sum(F) -> np.ndarray:
+    """Sum a square 2-D field along its diagonals with periodic indices.
+
+    ``out[d] = sum_i F[i, (i + d) % n]``: a peak at ``(x, y)`` lands at ``d = y - x``
+    (mod n), i.e. the second dimension encoded relative to the first.
+
+    Parameters
+    ----------
+    F : (n, n) float
+
+    Returns
+    -------
+    (n,) float
+    """
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[0] != F.shape[1]:
+        raise ValidationError(f"F must be a square 2-D array, got shape {F.shape}")
+    n = F.shape[0]
+    ext = np.concatenate([F, F], axis=1)
+    s0, s1 = ext.strides
+    view = np.lib.stride_tricks.as_strided(ext, shape=(n, n), strides=(s0 + s1, s1), writeable=False)
+    return view.sum(axis=0, dtype=np.float64)
