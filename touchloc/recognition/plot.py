@@ -1,0 +1,50 @@
+"""Figures of tactile scans (matplotlib, imported lazily)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["plot_scan"]
+
+
+def plot_scan(frames, *, every: int = 2, n_shown: int = 60, columns: int = 12, title: str | None = None,
+              max_value: float = 4095.0):
+    """Tile the frames of one scan, as in seed 002's Fig. 4 (bright = high pressure).
+
+    Parameters
+    ----------
+    frames : (n_frames, rows, cols) array
+    every : int
+        Show every ``every``-th frame (seed 002 shows every second frame).
+    n_shown : int
+        Number of frames shown (seed 002: 60).
+    columns : int
+        Frames per row of the figure.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    F = np.asarray(frames)
+    if F.ndim != 3:
+        raise ValidationError(f"frames must be (n_frames, rows, cols), got {F.shape}")
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    idx = np.arange(0, F.shape[0], max(1, int(every)))[: max(1, int(n_shown))]
+    rows = int(np.ceil(len(idx) / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(columns * 0.9, rows * 0.9 + (0.4 if title else 0.0)),
+                             squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, i in zip(axes.ravel(), idx):
+        ax.imshow(F[i], cmap="gray", vmin=0, vmax=max_value, interpolation="nearest")
+        ax.set_title(str(i), fontsize=6, pad=1)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout(pad=0.2)
+    return fig
