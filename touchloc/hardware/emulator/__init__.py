@@ -8,8 +8,9 @@ where they press into it. Faults can be injected (:class:`FaultPlan`).
 
 from ._faults import FAULT_KINDS, Fault, FaultPlan
 from ._sim import SimHand, SimWorld
+from .dsacon import DEFAULT_SHAPES, DSACON32mEmulator
 from .sdh2 import SDH2Emulator
 from .servers import CANServer, PtyServer, TCPServer
 
-__all__ = ["SDH2Emulator", "SimHand", "SimWorld", "TCPServer", "PtyServer", "CANServer",
+__all__ = ["SDH2Emulator", "DSACON32mEmulator", "DEFAULT_SHAPES", "SimHand", "SimWorld", "TCPServer", "PtyServer", "CANServer",
            "FaultPlan", "Fault", "FAULT_KINDS"]
