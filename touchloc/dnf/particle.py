@@ -1,0 +1,169 @@
+"""A Rao-Blackwellised particle filter for the rotation problem of seed 000.
+
+The state is the orientation offset ``delta`` (rad) between the odometry and the true
+rotation - ``orientation = odometry + delta`` - and a map of the object's surface
+orientations. As in FastSLAM, particles sample ``delta`` and each carries its own map,
+conditioned on its own trajectory: a histogram of object-frame normal orientations
+(``n_bins`` bins over ``[0, 2 pi)``, normals split linearly between the two nearest bins).
+
+Per sample:
+
+predict
+    ``delta += N(0, drift_std)`` (the odometry's drift and regrasp slips);
+update
+    each normal ``a`` is scored by the particle's map density at ``a - odometry - delta``
+    (Dirichlet-smoothed: ``(c_b + alpha) / (sum c + n_bins alpha)``, relative to uniform);
+    the normals of one sample come from one contact and are correlated, so the summed
+    log-likelihood is tempered by ``power``;
+resample
+    systematic, when the effective sample size drops below half the particles;
+map update
+    each particle adds the sample's normals to its own map (after an optional forgetting
+    factor).
+
+The estimate is the heaviest particle (its offset and map): the maps of different
+particles live in frames that may differ by a symmetry of the object, so averaging them
+would blur the sides.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._util import as_rng
+from ..errors import ValidationError
+from .estimators import normalize_max
+from .tracker import as_angles
+
+__all__ = ["ParticleOrientationEstimator"]
+
+TWO_PI = 2.0 * np.pi
+
+
+class ParticleOrientationEstimator:
+    """Joint orientation offset and surface-orientation map, Rao-Blackwellised.
+
+    Parameters
+    ----------
+    n_particles : int
+    n_bins : int
+        Bins of each particle's map over ``[0, 2 pi)``.
+    drift_std : float
+        Standard deviation of the offset's random walk per sample, rad.
+    alpha : float
+        Dirichlet pseudo-count per bin (how much an empty map tolerates).
+    power : float
+        Tempering exponent of a sample's joint likelihood (normals of one contact are
+        not independent).
+    forget : float
+        Fraction of each map forgotten per sample (0: none).
+    rng : None, int or numpy Generator
+
+    Attributes
+    ----------
+    offsets : (N,) float
+        Particles' orientation offsets, rad.
+    log_weights : (N,) float
+        Normalised log-weights.
+    maps : (N, n_bins) float
+        Particles' histograms of object-frame normal orientations.
+    """
+
+    def __init__(self, n_particles: int = 400, n_bins: int = 120, *, drift_std: float = np.radians(0.5),
+                 alpha: float = 0.05, power: float = 0.25, forget: float = 0.0, rng=None):
+        if not isinstance(n_particles, (int, np.integer)) or n_particles < 1:
+            raise ValidationError(f"n_particles must be a positive int, got {n_particles!r}")
+        if not isinstance(n_bins, (int, np.integer)) or n_bins < 8:
+            raise ValidationError(f"n_bins must be an int >= 8, got {n_bins!r}")
+        for name, v in (("drift_std", drift_std), ("alpha", alpha), ("power", power)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValidationError(f"{name} must be a positive finite number, got {v!r}")
+        if not (0 <= forget < 1):
+            raise ValidationError(f"forget must lie in [0, 1), got {forget!r}")
+        self.n_particles, self.n_bins = int(n_particles), int(n_bins)
+        self.drift_std, self.alpha, self.power, self.forget = float(drift_std), float(alpha), float(power), float(forget)
+        self.rng = as_rng(rng)
+        self.reset()
+
+    def reset(self) -> None:
+        """All particles at offset 0 with empty maps."""
+        N, B = self.n_particles, self.n_bins
+        self.offsets = np.zeros(N)
+        self.log_weights = np.full(N, -np.log(N))
+        self.maps = np.zeros((N, B))
+        self.odometry = 0.0
+        self.n_steps = 0
+        self._rows = (np.arange(N) * B)[:, None]
+
+    @property
+    def best(self) -> int:
+        """Index of the heaviest particle."""
+        return int(np.argmax(self.log_weights))
+
+    @property
+    def orientation(self) -> float:
+        """Estimated accumulated rotation (odometry + the heaviest particle's offset), rad."""
+        return self.odometry + float(self.offsets[self.best])
+
+    @property
+    def memory(self) -> np.ndarray:
+        """The heaviest particle's map scaled to a maximum of 1, (n_bins,) float."""
+        return normalize_max(self.maps[self.best])
+
+    def ess(self) -> float:
+        """Effective sample size of the weights."""
+        w = np.exp(self.log_weights)
+        return float(1.0 / np.sum(w * w))
+
+    def step(self, normal_angles, odometry: float) -> float:
+        """Process one sample ((K,) normal angles, rad, world frame; odometry, rad)."""
+        a = as_angles(normal_angles)
+        odo = float(odometry)
+        if not np.isfinite(odo):
+            raise ValidationError(f"odometry must be a finite float (rad), got {odo}")
+        self.odometry = odo
+        self._step(a)
+        return self.orientation
+
+    def _step(self, a: np.ndarray) -> None:
+        N, B = self.n_particles, self.n_bins
+        self.offsets += self.rng.normal(0.0, self.drift_std, N)
+        # object-frame positions in bin units, (N, K)
+        x = ((a[None, :] - self.odometry - self.offsets[:, None]) % TWO_PI) * (B / TWO_PI)
+        i0 = np.floor(x).astype(np.int64)
+        fr = x - i0
+        i0 %= B
+        i1 = (i0 + 1) % B
+        flat0, flat1 = (self._rows + i0).ravel(), (self._rows + i1).ravel()
+        m = self.maps.ravel()
+        dens = (1.0 - fr.ravel()) * m[flat0] + fr.ravel() * m[flat1]
+        tot = self.maps.sum(axis=1)
+        if self.n_steps:
+            ll = np.log((dens.reshape(N, -1) + self.alpha) * (B / (tot[:, None] + B * self.alpha))).sum(axis=1)
+            lw = self.log_weights + self.power * ll
+            lw -= np.logaddexp.reduce(lw)
+            self.log_weights = lw
+            if self.ess() < 0.5 * N:
+                self._resample()
+                x = ((a[None, :] - self.odometry - self.offsets[:, None]) % TWO_PI) * (B / TWO_PI)
+                i0 = np.floor(x).astype(np.int64)
+                fr = x - i0
+                i0 %= B
+                i1 = (i0 + 1) % B
+                flat0, flat1 = (self._rows + i0).ravel(), (self._rows + i1).ravel()
+        if self.forget:
+            self.maps *= 1.0 - self.forget
+        add = np.bincount(flat0, weights=(1.0 - fr).ravel(), minlength=N * B)
+        add += np.bincount(flat1, weights=fr.ravel(), minlength=N * B)
+        self.maps += add.reshape(N, B)
+        self.n_steps += 1
+
+    def _resample(self) -> None:
+        N = self.n_particles
+        w = np.exp(self.log_weights)
+        c = np.cumsum(w)
+        c[-1] = 1.0
+        idx = np.searchsorted(c, (self.rng.random() + np.arange(N)) / N)
+        self.offsets = self.offsets[idx]
+        self.maps = self.maps[idx]
+        self.log_weights = np.full(N, -np.log(N))
