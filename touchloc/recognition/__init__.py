@@ -26,8 +26,10 @@ from .classifier import (
 from .plot import plot_scan
 from .protocol import (
     ProtocolResult,
+    RejectionResult,
     bundled_objects,
     evaluate_protocol,
+    evaluate_rejection,
     procedural_objects,
     roc_auc,
     roc_curve,
@@ -38,6 +40,6 @@ __all__ = [
     "SequenceClassifier", "NearestNeighbourClassifier", "NotFittedError", "LocalLinearMap",
     "align_sequences", "aev_quantize", "sanger_pca", "svd_pca",
     "TactileScanner", "PadConfig", "Scan", "simulate_dataset",
-    "evaluate_protocol", "ProtocolResult", "bundled_objects", "procedural_objects",
+    "evaluate_protocol", "ProtocolResult", "evaluate_rejection", "RejectionResult", "bundled_objects", "procedural_objects",
     "roc_auc", "roc_curve", "plot_scan",
 ]

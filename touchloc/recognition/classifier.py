@@ -11,8 +11,8 @@ The pipeline of seed 002 (Fig. 5):
 4. a Local Linear Map per cell (``n_llm`` nodes, each with a linear map) from the
    projection p in R^n_pc to a score per class; the winner class is the arg max.
 
-Beyond the seed, the reconstruction error of x against its cell's local PCA measures how
-unlike the training data a sequence is; with ``reject_quantile`` set, a threshold is
+Beyond the seed, the relative reconstruction error of x against its cell's local PCA
+measures how unlike the training data a sequence is; with ``reject_quantile`` set, a threshold is
 calibrated on held-out folds of the training set and ``predict(X, reject=True)`` marks
 sequences above it as unknown.
 """
@@ -503,10 +503,14 @@ class SequenceClassifier(_SequenceModel):
         return out
 
     def novelty_score(self, X) -> np.ndarray:
-        """(n,) float: distance of each sequence from its cell's local PCA subspace.
+        """(n,) float in [0, 1]: how poorly the cell's local PCA explains each sequence.
 
-        The norm of the residual ``x - m - W^T W (x - m)`` in scaled reading units; large
-        values mean the sequence is unlike anything the classifier was trained on.
+        ``|x - m - W^T W (x - m)| / |x - m|`` for the winning cell (mean m, components
+        W): the fraction of the sequence's deviation from its cell mean that the local
+        principal components do not reconstruct. Large values mean the sequence is
+        unlike anything the classifier was trained on. (The plain residual norm
+        separated held-back objects less well: ROC AUC 0.96 against 0.98 on the bundled
+        meshes, 0.73 against 0.91 on the procedural shapes, in our runs.)
         """
         self._check_fitted()
         return _residual(self._features(X), self.references_, self.means_, self.components_)
@@ -517,7 +521,9 @@ def _residual(Z, refs, means, comps):
     C = Z - means[cell]
     P = np.einsum("nkd,nd->nk", comps[cell], C)
     R = C - np.einsum("nkd,nk->nd", comps[cell], P)
-    return np.sqrt(np.einsum("nd,nd->n", R, R))
+    r2 = np.einsum("nd,nd->n", R, R)
+    c2 = np.einsum("nd,nd->n", C, C)
+    return np.sqrt(r2 / np.where(c2 > 0, c2, 1.0))
 
 
 class NearestNeighbourClassifier(_SequenceModel):

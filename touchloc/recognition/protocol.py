@@ -11,7 +11,7 @@ import numpy as np
 from .._util import as_rng, progress
 from ..errors import ValidationError
 
-__all__ = ["SplitResult", "ProtocolResult", "evaluate_protocol", "bundled_objects", "procedural_objects",
+__all__ = ["ProtocolResult", "RejectionResult", "evaluate_protocol", "evaluate_rejection", "bundled_objects", "procedural_objects",
            "roc_auc", "roc_curve"]
 
 #: the seven bundled meshes used as seed 002's seven objects
@@ -101,6 +101,59 @@ def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int
         np.add.at(conf, (yi[~train], pi), 1)
     return ProtocolResult(np.array(acc), np.array(tt), np.array(pt), len(classes), int(n_train),
                           int(counts.min() - n_train), conf)
+
+
+@dataclass
+class RejectionResult:
+    """Novelty detection on objects held back from training.
+
+    Attributes
+    ----------
+    aucs : (n_splits,) float
+        ROC AUC of the novelty score, known test sequences against held-back objects.
+    false_reject, true_reject : (n_splits,) float
+        At the classifier's calibrated threshold (None if it has none): fraction of
+        known test sequences rejected, and of held-back sequences rejected.
+    held_back : list of tuple
+        The held-back classes of each split.
+    """
+
+    aucs: np.ndarray
+    false_reject: np.ndarray | None
+    true_reject: np.ndarray | None
+    held_back: list
+
+
+def evaluate_rejection(X, y, make_classifier, *, n_unknown: int = 2, n_train: int = 16, n_splits: int = 10,
+                       rng=None) -> RejectionResult:
+    """Hold ``n_unknown`` classes back, train on ``n_train`` scans of each other class.
+
+    The classifier (from ``make_classifier(split_index)``) must have ``novelty_score``;
+    if it calibrates a ``rejection_threshold_`` the rejection rates at it are reported.
+    """
+    y = np.asarray(y)
+    classes, yi = np.unique(y, return_inverse=True)
+    if not 1 <= n_unknown <= len(classes) - 2:
+        raise ValidationError(f"n_unknown must leave at least two known classes of {len(classes)}, got {n_unknown}")
+    rng = as_rng(rng)
+    aucs, fr, tr_, held = [], [], [], []
+    for s in range(int(n_splits)):
+        unk = rng.choice(len(classes), size=n_unknown, replace=False)
+        known = ~np.isin(yi, unk)
+        train = np.zeros(len(y), dtype=bool)
+        for c in np.setdiff1d(np.arange(len(classes)), unk):
+            idx = np.flatnonzero(yi == c)
+            train[rng.choice(idx, size=min(n_train, len(idx) - 1), replace=False)] = True
+        test = known & ~train
+        clf = make_classifier(s).fit(X[train], y[train])
+        a, b = clf.novelty_score(X[test]), clf.novelty_score(X[~known])
+        aucs.append(roc_auc(a, b))
+        thr = getattr(clf, "rejection_threshold_", None)
+        if thr is not None:
+            fr.append(float(np.mean(a > thr)))
+            tr_.append(float(np.mean(b > thr)))
+        held.append(tuple(classes[unk].tolist()))
+    return RejectionResult(np.array(aucs), np.array(fr) if fr else None, np.array(tr_) if tr_ else None, held)
 
 
 def bundled_objects() -> dict:
