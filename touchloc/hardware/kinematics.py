@@ -129,6 +129,7 @@ class SDH2Kinematics:
             raise ValidationError("pads must be 6 PadLayout objects (matrix index = 2 * finger + part)")
         self.pads = pads
         self.bases = _BASES.copy()
+        self._cache: dict = {}
 
     def with_matrix_info(self, infos) -> "SDH2Kinematics":
         """A copy whose pads take cells and texel sizes from the controller's matrix info."""
@@ -176,7 +177,7 @@ class SDH2Kinematics:
         n_d = math.cos(th_d) * c - math.sin(th_d) * _Z
         base = self.bases[f]
         distal = base + self.l1 * u_p
-        return {"base": base.copy(), "c": c, "k": np.cross(_Z, c), "u_p": u_p, "u_d": u_d,
+        return {"base": base.copy(), "c": c, "k": np.array([-c[1], c[0], 0.0]), "u_p": u_p, "u_d": u_d,
                 "n_p": n_p, "n_d": n_d, "distal_joint": distal, "tip": distal + self.l2 * u_d}
 
     def fingertips(self, angles) -> np.ndarray:
@@ -200,9 +201,15 @@ class SDH2Kinematics:
 
     def texel_points(self, angles, matrix: int) -> np.ndarray:
         """(cells_y, cells_x, 3) float: texel centres of pad ``matrix`` on its surface (H)."""
-        pad = self.pads[matrix]
-        y, x = np.mgrid[0:pad.cells_y, 0:pad.cells_x]
-        return self.pad_point(angles, matrix, x, y)
+        key = ("texels", matrix)
+        grid = self._cache.get(key)
+        if grid is None:
+            pad = self.pads[matrix]
+            y, x = np.mgrid[0:pad.cells_y, 0:pad.cells_x]
+            grid = self._cache[key] = pad.local_coordinates(x, y)
+        o, u, k, _ = self.pad_frame(angles, matrix)
+        along, across = grid
+        return o + along[..., None] * u + across[..., None] * k
 
     def pad_point(self, angles, matrix: int, x, y) -> np.ndarray:
         """(..., 3) float: points on pad ``matrix`` at texel coordinates (x column, y row)."""
@@ -299,7 +306,8 @@ class SDH2Kinematics:
         for a0 in cands:
             if f != 1 and not (a0_limits[0] - 1e-9 <= a0 <= a0_limits[1] + 1e-9):
                 continue
-            k = np.cross(_Z, self.closing_direction(f, a0))
+            c = self.closing_direction(f, a0)
+            k = np.array([-c[1], c[0], 0.0])
             if abs(float(o @ k)) <= tol and abs(float(d @ k)) <= tol:
                 return float(min(max(a0, a0_limits[0]), a0_limits[1])) if f != 1 else 0.0
         return None

@@ -61,6 +61,10 @@ class SimWorld:
         self.block_depth = float(block_depth)
         # hand frame -> object frame
         self._T_obj_hand = np.linalg.inv(self.object_pose) @ self.hand_pose
+        # points farther than this from the mesh's bounding-box centre cannot touch it
+        b = np.asarray(obj.bounds, dtype=np.float64)
+        self._center = b.mean(axis=0)
+        self._reach2 = (0.5 * float(np.linalg.norm(b[1] - b[0])) + 0.005) ** 2
 
     def penetration(self, angles_rad, matrices=range(6)):
         """Penetration depth (m, >= 0) of every texel of the given pads: list of (cells_y, cells_x)."""
@@ -73,9 +77,12 @@ class SimWorld:
         P = np.concatenate(pts)
         R, t = self._T_obj_hand[:3, :3], self._T_obj_hand[:3, 3]
         Po = P @ R.T + t
-        closest, normals, dist = self.obj.closest_points(Po)
-        inside = np.einsum("ij,ij->i", Po - closest, normals) < 0
-        depth = np.where(inside, dist, 0.0)
+        depth = np.zeros(len(Po))
+        near = np.einsum("ij,ij->i", Po - self._center, Po - self._center) <= self._reach2
+        if near.any():
+            closest, normals, dist = self.obj.closest_points(Po[near])
+            inside = np.einsum("ij,ij->i", Po[near] - closest, normals) < 0
+            depth[near] = np.where(inside, dist, 0.0)
         out, i = [], 0
         for s in shapes:
             n = s[0] * s[1]
@@ -113,6 +120,8 @@ class SimHand:
         self.world = world
         self.time_scale = float(time_scale)
         self.dt = float(dt)
+        #: most integration steps per update; beyond it the simulated time runs slow
+        self.max_substeps = 25
         self.lock = threading.RLock()
         self.p_min, self.p_max = (x.copy() for x in DEFAULT_ANGLE_LIMITS_DEG)
         self.vlim = DEFAULT_VLIM_DEG.copy()
@@ -138,10 +147,12 @@ class SimHand:
             now = time.monotonic()
             span = (now - self._last) * self.time_scale
             self._last = now
-            n = min(int(math.ceil(span / self.dt)), 5000)
+            n = int(math.ceil(span / self.dt))
             if n <= 0:
                 return
             h = span / n
+            if n > self.max_substeps:  # too slow to keep up: let device time lag behind
+                n, h = self.max_substeps, self.dt
             for _ in range(n):
                 if not self._step(h):
                     break
@@ -176,8 +187,11 @@ class SimHand:
             ax = [a for a in axes if a is not None]
             if not active[ax].any():
                 continue
-            depth = self.world.penetration(rad, (2 * f, 2 * f + 1))
-            if max(float(d.max()) for d in depth) > self.world.block_depth:
+            depth = max(float(d.max()) for d in self.world.penetration(rad, (2 * f, 2 * f + 1)))
+            if depth <= self.world.block_depth:
+                continue
+            before = max(float(d.max()) for d in self.world.penetration(np.radians(prev), (2 * f, 2 * f + 1)))
+            if depth > before:  # pressing further in: blocked (moving out is always allowed)
                 for a in ax:
                     if active[a]:
                         direction = self.angles[a] - prev[a]

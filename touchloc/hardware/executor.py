@@ -1,0 +1,252 @@
+"""Guarded touches on the real (or emulated) SDH-2: move, watch the pads, stop at contact.
+
+A :class:`~touchloc.planners.GuardedTouch` is a straight line in the world. On the SDH-2 a
+finger's probe point (the centre of its distal pad surface) can follow a line lying in the
+finger's plane (the plane through its proximal joint spanned by the hand's z axis and the
+closing direction, set by the base angle a0). The executor picks such a finger, solves the
+planar inverse kinematics along the line in small steps, and after each step reads a
+tactile frame: the touch ends at the first step whose frame shows a pressure blob at or
+above the threshold on the moving finger (or whose axes report "blocked").
+
+On any fault the executor sends ``stop`` to the hand and re-raises the typed error. Every
+finished touch can be appended to a :class:`~touchloc.hardware.session.SessionLog`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import HardwareError, ValidationError
+from ..models import Contacts
+from ..planners import GuardedTouch, TouchResult
+from .kinematics import FINGER_AXES, SDH2Kinematics
+from .session import SessionLog
+from .tactile import blobs_to_contacts, find_blobs
+
+__all__ = ["GuardedTouchExecutor", "TouchPlan", "TouchAborted"]
+
+
+class TouchAborted(HardwareError):
+    """A touch could not be carried out as planned (e.g. a finger blocked on its way to the start)."""
+
+
+@dataclass(frozen=True)
+class TouchPlan:
+    """How a guarded touch is made: the finger, its base angle and the joint path.
+
+    Attributes
+    ----------
+    finger : int
+    a0 : float
+        Base angle (rad; 0 for the thumb).
+    travel : (M,) float
+        Distance along the touch line of each waypoint (m).
+    angles : (M, 7) float
+        Joint angles (rad) of each waypoint.
+    """
+
+    finger: int
+    a0: float
+    travel: np.ndarray
+    angles: np.ndarray
+
+
+class GuardedTouchExecutor:
+    """Runs guarded touches on an SDH-2 with DSACON32m pads.
+
+    Parameters
+    ----------
+    hand : SDH2
+    tactile : DSACON32m
+    kinematics : SDH2Kinematics, optional
+        Default: the standard kinematics with the pad sizes the controller reported.
+    hand_pose : (4, 4) float, optional
+        T_world_hand (default identity: the world is the hand frame).
+    threshold : int
+        Texel value (0..4095) that counts as contact (default 200).
+    step : float
+        Waypoint spacing along the touch line (m; default 2 mm).
+    speed : float
+        Joint speed (rad/s) for the steps (default 60 deg/s; clipped to the hand's limits).
+    rest_angles : (7,) float, optional
+        Open posture the hand passes through before and after each touch (rad). Default:
+        proximal joints at -30 deg, distal at +30 deg (fingers opened outwards).
+    log : SessionLog or path, optional
+        Where every executed touch is appended.
+    move_timeout : float
+        Longest wait for one step (s).
+    """
+
+    def __init__(self, hand, tactile, *, kinematics: SDH2Kinematics | None = None, hand_pose=None,
+                 threshold: int = 200, step: float = 0.002, speed: float = math.radians(60),
+                 rest_angles=None, log=None, move_timeout: float = 5.0, retreat: bool = True):
+        self.hand = hand
+        self.tactile = tactile
+        if kinematics is None:
+            kinematics = SDH2Kinematics()
+            infos = getattr(tactile, "matrix_infos", None)
+            if infos and len(infos) == 6:
+                kinematics = kinematics.with_matrix_info(infos)
+        self.kinematics = kinematics
+        T = np.eye(4) if hand_pose is None else np.asarray(hand_pose, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6):
+            raise ValidationError("hand_pose must be a finite rigid (4, 4) transform T_world_hand")
+        self.hand_pose = T
+        self._hand_from_world = np.linalg.inv(T)
+        if not 0 < threshold <= 4095:
+            raise ValidationError(f"threshold must lie in 1..4095, got {threshold}")
+        self.threshold = int(threshold)
+        if not (step > 0):
+            raise ValidationError(f"step must be a positive length (m), got {step}")
+        self.step = float(step)
+        if not (speed > 0):
+            raise ValidationError(f"speed must be positive (rad/s), got {speed}")
+        self.speed = float(speed)
+        rest = np.radians([0.0, -30, 30, -30, 30, -30, 30]) if rest_angles is None else np.asarray(rest_angles, float)
+        if rest.shape != (7,):
+            raise ValidationError(f"rest_angles must be 7 joint angles (rad), got {rest.shape}")
+        self.rest_angles = rest
+        self.log = SessionLog(log) if log is not None and not isinstance(log, SessionLog) else log
+        self.move_timeout = float(move_timeout)
+        self.retreat = bool(retreat)
+        self.stops_sent = 0
+
+    # -- planning (no I/O) ----------------------------------------------------------------
+    def finger_touch(self, finger: int, a0: float, start, end, *, name: str = "") -> GuardedTouch:
+        """A GuardedTouch (world frame) along a line of a finger's plane.
+
+        Parameters
+        ----------
+        finger : int
+        a0 : float
+            Base angle (rad; ignored for the thumb).
+        start, end : (2,) float
+            (r, z) in the finger plane: along the closing direction and along the hand's
+            z axis, from the proximal joint (m).
+        """
+        kin = self.kinematics
+        p = kin.plane_to_hand(finger, a0, [start[0], end[0]], [start[1], end[1]])
+        pw = p @ self.hand_pose[:3, :3].T + self.hand_pose[:3, 3]
+        d = pw[1] - pw[0]
+        return GuardedTouch(pw[0], d, float(np.linalg.norm(d)), name=name or f"finger {finger}")
+
+    def plan(self, touch: GuardedTouch, *, finger: int | None = None) -> TouchPlan:
+        """Choose a finger and the joint path for ``touch`` (raises ValidationError if none can)."""
+        if not isinstance(touch, GuardedTouch):
+            raise ValidationError(f"touch must be a GuardedTouch, got {type(touch).__name__}")
+        kin = self.kinematics
+        R, t = self._hand_from_world[:3, :3], self._hand_from_world[:3, 3]
+        o = R @ touch.origin + t
+        d = R @ touch.direction
+        lo, hi = self.hand.angle_limits
+        fingers = (1, 0, 2) if finger is None else (kin._finger(finger),)
+        reasons = []
+        for f in fingers:
+            a0 = kin.touch_plane(f, o, d, a0_limits=(lo[0], hi[0]))
+            if a0 is None:
+                reasons.append(f"finger {f}: the line is not in any of its planes")
+                continue
+            n = max(2, int(math.ceil(touch.max_travel / self.step)) + 1)
+            travel = np.linspace(0.0, touch.max_travel, n)
+            pts = o + travel[:, None] * d
+            c = kin.closing_direction(f, a0)
+            rel = pts - kin.bases[f]
+            r, z = rel @ c, rel[:, 2]
+            ax = FINGER_AXES[f]
+            lim = (np.array([lo[ax[1]], lo[ax[2]]]), np.array([hi[ax[1]], hi[ax[2]]]))
+            path = np.tile(self.rest_angles, (n, 1))
+            if ax[0] is not None:
+                path[:, 0] = a0
+            prev = None
+            ok = True
+            for i in range(n):
+                q = kin.planar_ik(f, float(r[i]), float(z[i]), limits=lim, prefer=prev)
+                if q is None:
+                    reasons.append(f"finger {f}: waypoint {i} ({travel[i] * 1e3:.1f} mm along) is out of reach")
+                    ok = False
+                    break
+                path[i, ax[1]], path[i, ax[2]] = q
+                prev = q
+            if ok:
+                return TouchPlan(f, float(a0), travel, path)
+        raise ValidationError(f"touch {touch.name or ''} cannot be made by any finger: " + "; ".join(reasons))
+
+    # -- execution ------------------------------------------------------------------------
+    def _stop(self) -> None:
+        """Best-effort stop after a fault."""
+        try:
+            self.hand.stop()
+        except HardwareError:
+            pass
+        self.stops_sent += 1
+
+    def execute(self, touch: GuardedTouch, *, finger: int | None = None) -> TouchResult:
+        """Run one guarded touch; returns its :class:`TouchResult` (contacts in the world frame).
+
+        Raises
+        ------
+        ValidationError
+            No finger can make the touch (nothing was sent).
+        HardwareError
+            Any fault of the hand or the pads (after ``stop`` was sent).
+        """
+        plan = self.plan(touch, finger=finger)
+        try:
+            result, angles, blobs = self._run(touch, plan)
+        except BaseException:
+            self._stop()
+            raise
+        if self.log is not None:
+            self.log.append(result, finger=plan.finger, angles=angles, hand_pose=self.hand_pose,
+                            blobs=[{"matrix": b.matrix, "centroid": b.centroid, "covariance": b.covariance,
+                                    "pressure": b.pressure, "n_texels": b.n_texels} for b in blobs])
+        return result
+
+    def _move(self, angles) -> np.ndarray:
+        self.hand.move(angles)
+        return self.hand.wait_until_idle(self.move_timeout)
+
+    def _run(self, touch: GuardedTouch, plan: TouchPlan):
+        hand, kin = self.hand, self.kinematics
+        f = plan.finger
+        ax = [a for a in FINGER_AXES[f] if a is not None]
+        pads = (2 * f, 2 * f + 1)
+        hand.set_target_velocities(np.minimum(np.full(7, self.speed), hand.velocity_limits))
+        rest = self.rest_angles.copy()
+        if FINGER_AXES[f][0] is not None:
+            rest[0] = plan.a0
+        else:
+            rest[0] = hand.actual_angles()[0]
+        self._move(rest)
+        st = self._move(plan.angles[0])
+        if np.any(np.isin(st[ax], (4, 5))):
+            raise TouchAborted(f"finger {f} was blocked on its way to the start of touch {touch.name!r}")
+        result = None
+        for i in range(len(plan.travel)):
+            if i > 0:
+                st = self._move(plan.angles[i])
+            frame = self.tactile.read_frame()
+            angles = hand.actual_angles()
+            blobs = find_blobs(frame, angles, kin, threshold=self.threshold, matrices=pads, hand_pose=self.hand_pose)
+            blocked = bool(np.any(np.isin(st[ax], (4, 5))))
+            if blobs or blocked:
+                probe = self.hand_pose[:3, :3] @ kin.probe_point(angles, f) + self.hand_pose[:3, 3]
+                travel = float(np.clip((probe - touch.origin) @ touch.direction, 0.0, touch.max_travel))
+                if blobs:
+                    contact = blobs_to_contacts(blobs)
+                else:  # blocked without pressure: the probe point is the best guess
+                    n = -(self.hand_pose[:3, :3] @ kin.finger_chain(angles, f)["n_d"])
+                    contact = Contacts(probe[None], n[None])
+                result = TouchResult(touch, travel, contact)
+                break
+        else:
+            angles = hand.actual_angles()
+            blobs = []
+            result = TouchResult(touch, touch.max_travel, None)
+        if self.retreat:
+            self._move(plan.angles[0])
+            self._move(rest)
+        return result, angles, blobs
