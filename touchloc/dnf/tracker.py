@@ -100,7 +100,7 @@ class TrackerParams:
     surface_to_map: float = 6.0
     memory_to_map: float = 2.0
     memory_tau: float = 1.0
-    memory_build: float = 0.1
+    memory_build: float = 0.2
     memory_decay: float = 0.0015
     #: match field: broad copy of the detected sides plus the memory as pre-shape
     match: FieldParams = FieldParams(tau=1.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),

@@ -1,0 +1,108 @@
+"""OrientationTracker (seed 000, Fig. 2): validation, correction sign, and the seed's result
+on simulated data sets (one per object: full model right, baselines worse)."""
+
+import numpy as np
+import pytest
+
+from touchloc.dnf import HistogramEstimator, OrientationTracker, count_surfaces, generate_rotation_dataset
+from touchloc.dnf.compare import orientation_error, run_estimator
+from touchloc.errors import ValidationError
+
+DEG = np.pi / 180
+
+
+@pytest.fixture(scope="module")
+def datasets():
+    return {n: generate_rotation_dataset(n, rng=np.random.default_rng([7, n])) for n in (6, 8, 0)}
+
+
+@pytest.mark.parametrize("bad, match", [
+    ([np.nan, 0.1], "entry 0 is nan"),
+    ([], "at least one angle"),
+    (np.zeros((2, 3)), r"1-D array \(K,\)"),
+    ("abc", "angles in rad"),
+])
+def test_step_rejects_bad_normal_angles(bad, match):
+    with pytest.raises(ValidationError, match=match):
+        OrientationTracker().step(bad, 0.0)
+
+
+def test_step_rejects_bad_odometry_and_unknown_parameters():
+    with pytest.raises(ValidationError, match="odometry"):
+        OrientationTracker().step([0.1], float("inf"))
+    with pytest.raises(ValidationError, match="odometry"):
+        OrientationTracker().step([0.1], "x")
+    with pytest.raises(ValidationError, match="unknown tracker parameters"):
+        OrientationTracker(gain=3)
+
+
+def _regular_samples(n_sides, n_samples, offset=0.0, rng=None):
+    """A hexagon turned 4 deg per sample, both fingers on opposite sides, exact odometry
+    (plus ``offset`` from sample ``n_samples // 2`` on)."""
+    rng = np.random.default_rng(rng)
+    out = []
+    for t in range(n_samples):
+        theta = 4 * DEG * t
+        stroke_start = theta - (4 * DEG) * (t % 8)
+        side = np.round(-stroke_start / (2 * np.pi / n_sides)) * 2 * np.pi / n_sides
+        world = side + theta + np.array([0.0, np.pi])
+        a = np.repeat(world, 12) + rng.normal(0, 2 * DEG, 24)
+        out.append((a, theta + (offset if t >= n_samples // 2 else 0.0)))
+    return out
+
+
+def test_exact_odometry_builds_n_sides_and_needs_no_correction():
+    tr = OrientationTracker()
+    for a, odo in _regular_samples(6, 300, rng=1):
+        tr.step(a, odo)
+    assert count_surfaces(tr.memory) == 6
+    assert abs(tr.correction) < 2 * DEG
+    assert 0.5 < tr.memory.max() <= 1.0
+
+
+def test_correction_removes_an_odometry_jump():
+    # after the memory is built, the odometry jumps by +10 deg: the tracker must correct it
+    tr = OrientationTracker()
+    samples = _regular_samples(6, 400, offset=10 * DEG, rng=2)
+    for a, odo in samples[:200]:
+        tr.step(a, odo)
+    c0 = tr.correction
+    for a, odo in samples[200:]:
+        tr.step(a, odo)
+    assert tr.correction - c0 == pytest.approx(-10 * DEG, abs=2 * DEG)
+    assert count_surfaces(tr.memory) == 6
+    # without correction the estimate keeps the jump
+    un = OrientationTracker(correct=False)
+    for a, odo in samples:
+        un.step(a, odo)
+    assert un.correction == 0.0 and un.orientation == samples[-1][1]
+
+
+def test_reset_forgets_everything():
+    tr = OrientationTracker()
+    for a, odo in _regular_samples(6, 60, rng=3):
+        tr.step(a, odo)
+    assert tr.memory.max() > 0
+    tr.reset()
+    assert tr.memory.max() == 0 and tr.correction == 0 and tr.n_steps == 0
+    assert np.all(tr.surface.u == tr.params.surface.h)
+
+
+def test_seed_result_on_simulated_data(datasets):
+    """Seed 000, Fig. 6/7: full model right on the n-gons and 0 on the round object; the
+    histogram and the uncorrected memory clearly worse."""
+    makers = {"hist": lambda: HistogramEstimator(), "uncorrected": lambda: OrientationTracker(correct=False),
+              "full": lambda: OrientationTracker()}
+    acc = {(n, k): run_estimator(k, m, ds).accuracy for n, ds in datasets.items() for k, m in makers.items()}
+    for n in (6, 8):
+        assert acc[n, "full"] >= 0.9
+        assert acc[n, "hist"] <= 0.5 and acc[n, "uncorrected"] <= 0.5
+    assert acc[0, "full"] == 1.0                    # 0 sides on the round object
+    assert acc[0, "hist"] <= 0.5                    # the histogram finds false sides
+
+
+def test_orientation_error_is_wrapped_to_the_symmetry():
+    e = orientation_error([0.0, 61 * DEG, -31 * DEG], [0.0, 0.0, 0.0], 6)
+    np.testing.assert_allclose(np.degrees(e), [0.0, 1.0, 29.0], atol=1e-9)
+    e0 = orientation_error([3.5], [0.0], 0)
+    assert e0[0] == pytest.approx(3.5 - 2 * np.pi)
