@@ -32,7 +32,6 @@ import numpy as np
 
 from .._util import as_rng
 from ..errors import ValidationError
-from .estimators import normalize_max
 from .tracker import as_angles
 
 __all__ = ["ParticleOrientationEstimator"]
@@ -57,6 +56,9 @@ class ParticleOrientationEstimator:
         not independent).
     forget : float
         Fraction of each map forgotten per sample (0: none).
+    contrast : float
+        Density contrast (relative to uniform, minus 1) at which :attr:`memory` reaches
+        ``1 - 1/e``.
     rng : None, int or numpy Generator
 
     Attributes
@@ -70,18 +72,19 @@ class ParticleOrientationEstimator:
     """
 
     def __init__(self, n_particles: int = 400, n_bins: int = 120, *, drift_std: float = np.radians(0.5),
-                 alpha: float = 0.05, power: float = 0.25, forget: float = 0.0, rng=None):
+                 alpha: float = 0.05, power: float = 0.25, forget: float = 0.0, contrast: float = 2.0, rng=None):
         if not isinstance(n_particles, (int, np.integer)) or n_particles < 1:
             raise ValidationError(f"n_particles must be a positive int, got {n_particles!r}")
         if not isinstance(n_bins, (int, np.integer)) or n_bins < 8:
             raise ValidationError(f"n_bins must be an int >= 8, got {n_bins!r}")
-        for name, v in (("drift_std", drift_std), ("alpha", alpha), ("power", power)):
+        for name, v in (("drift_std", drift_std), ("alpha", alpha), ("power", power), ("contrast", contrast)):
             if not (np.isfinite(v) and v > 0):
                 raise ValidationError(f"{name} must be a positive finite number, got {v!r}")
         if not (0 <= forget < 1):
             raise ValidationError(f"forget must lie in [0, 1), got {forget!r}")
         self.n_particles, self.n_bins = int(n_particles), int(n_bins)
         self.drift_std, self.alpha, self.power, self.forget = float(drift_std), float(alpha), float(power), float(forget)
+        self.contrast = float(contrast)
         self.rng = as_rng(rng)
         self.reset()
 
@@ -107,8 +110,18 @@ class ParticleOrientationEstimator:
 
     @property
     def memory(self) -> np.ndarray:
-        """The heaviest particle's map scaled to a maximum of 1, (n_bins,) float."""
-        return normalize_max(self.maps[self.best])
+        """The heaviest particle's map as a side strength in [0, 1), (n_bins,) float.
+
+        With ``r`` the map's density relative to uniform, the strength is
+        ``1 - exp(-max(r - 1, 0) / contrast)``: a uniform map (round object) stays near 0,
+        sides visited more or less often all saturate (a plain max-normalised histogram
+        lets rarely touched sides fall below the counting threshold).
+        """
+        m = self.maps[self.best]
+        mean = m.mean()
+        if mean <= 0:
+            return np.zeros(self.n_bins)
+        return 1.0 - np.exp(-np.maximum(m / mean - 1.0, 0.0) / self.contrast)
 
     def ess(self) -> float:
         """Effective sample size of the weights."""
