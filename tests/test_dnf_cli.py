@@ -1,0 +1,49 @@
+"""``touchloc compare-dnf`` and ``touchloc dnf-figure``."""
+
+import argparse
+
+import numpy as np
+import pytest
+
+from touchloc.dnf import _cli, generate_rotation_dataset, save_recording
+
+
+def run(argv):
+    parser = argparse.ArgumentParser(prog="touchloc")
+    _cli.register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_compare_dnf_prints_table_and_saves_plots(tmp_path, capsys):
+    rc = run(["compare-dnf", "--objects", "6-gon", "--datasets", "1", "--particles", "50",
+              "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "| 6-gon (6 sides) | DNF, corrected | 100% |" in out
+    for name in ("histogram", "memory, uncorrected", "particle filter"):
+        assert f"| {name} |" in out
+    for png in ("dnf_surfaces.png", "dnf_second_half.png", "dnf_orientation_error.png"):
+        assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_compare_dnf_on_a_recording(tmp_path, capsys):
+    rec = save_recording(generate_rotation_dataset(8, revolutions=1, rng=2), tmp_path / "rec.npz")
+    rc = run(["compare-dnf", "--recording", str(rec), "--particles", "20", "--no-plots"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "1 data sets: 8-gon x 1" in out and "| 8-gon (8 sides) | DNF, corrected |" in out
+
+
+def test_dnf_figure_writes_png(tmp_path, capsys):
+    path = tmp_path / "fig5.png"
+    rc = run(["dnf-figure", "--object", "6-gon", "--dataset", "1", "--out", str(path)])
+    out = capsys.readouterr().out
+    assert rc == 0 and path.read_bytes()[:4] == b"\x89PNG"
+    assert "DNF, corrected: 6 sides at the end" in out
+
+
+def test_dnf_figure_rejects_unknown_object():
+    from touchloc.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="unknown object"):
+        run(["dnf-figure", "--object", "5-gon"])
