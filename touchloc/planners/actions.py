@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import ValidationError
 
-__all__ = ["GuardedTouch", "HandTouch", "TouchResult"]
+__all__ = ["GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "fingers_of", "as_cost"]
 
 
 @dataclass(frozen=True)
@@ -116,3 +116,100 @@ class TouchResult:
     def swept_segment(self):
         """(start (3,), end (3,)) of the free-space segment the probe travelled."""
         return self.touch.origin.copy(), self.touch.point_at(self.travel)
+
+
+# -- helpers shared by the simulation and the planners -------------------------------------
+def fingers_of(action) -> tuple:
+    """The guarded touches an action is made of: ``(touch,)`` or a hand's fingers.
+
+    Raises
+    ------
+    ValidationError
+        When ``action`` is neither a :class:`GuardedTouch` nor a :class:`HandTouch`.
+    """
+    if isinstance(action, GuardedTouch):
+        return (action,)
+    if isinstance(action, HandTouch):
+        return action.touches
+    raise ValidationError(
+        f"a candidate action must be a GuardedTouch or a HandTouch, got {type(action).__name__}")
+
+
+# -- action costs ------------------------------------------------------------------------
+class ActionCost:
+    """Cost C(A, D) of executing an action that ended with the given finger travels.
+
+    Subclasses implement :meth:`__call__`. Any callable ``cost(action, travel) -> (...)``
+    with the same signature works where a cost is expected.
+    """
+
+    def __call__(self, action, travel) -> np.ndarray:
+        """Cost of ``action`` for each outcome.
+
+        Parameters
+        ----------
+        action : GuardedTouch or HandTouch
+        travel : (..., F) float
+            How far each of the action's F fingers moved before stopping (m).
+
+        Returns
+        -------
+        (...) float
+        """
+        raise NotImplementedError
+
+
+class TravelDistance(ActionCost):
+    """Total distance moved by the fingers (m), plus an optional fixed ``overhead`` (m)."""
+
+    def __init__(self, overhead: float = 0.0):
+        if not (np.isfinite(overhead) and overhead >= 0):
+            raise ValidationError(f"overhead must be >= 0 (m), got {overhead}")
+        self.overhead = float(overhead)
+
+    def __call__(self, action, travel) -> np.ndarray:
+        return self.overhead + np.sum(np.asarray(travel, dtype=float), axis=-1)
+
+    def __repr__(self) -> str:
+        return f"TravelDistance(overhead={self.overhead})"
+
+
+class TravelTime(ActionCost):
+    """Execution time (s): fingers move at once at ``speed`` (m/s), go there and back.
+
+    ``time = overhead + (1 + return_fraction) * max_finger travel / speed``; a
+    ``reach`` (m) term adds the distance from ``home`` to the action's start point
+    (the mean finger origin), covered at ``approach_speed``.
+    """
+
+    def __init__(self, speed: float = 0.05, overhead: float = 1.0, *, return_fraction: float = 1.0,
+                 home=None, approach_speed: float = 0.25):
+        for name, v in (("speed", speed), ("approach_speed", approach_speed)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValidationError(f"{name} must be > 0 (m/s), got {v}")
+        if not (np.isfinite(overhead) and overhead >= 0):
+            raise ValidationError(f"overhead must be >= 0 (s), got {overhead}")
+        self.speed, self.overhead = float(speed), float(overhead)
+        self.return_fraction = float(return_fraction)
+        self.home = None if home is None else np.asarray(home, dtype=float).reshape(3)
+        self.approach_speed = float(approach_speed)
+
+    def __call__(self, action, travel) -> np.ndarray:
+        t = np.asarray(travel, dtype=float)
+        out = self.overhead + (1.0 + self.return_fraction) * t.max(axis=-1) / self.speed
+        if self.home is not None:
+            start = np.mean([f.origin for f in fingers_of(action)], axis=0)
+            out = out + 2.0 * np.linalg.norm(start - self.home) / self.approach_speed
+        return out
+
+    def __repr__(self) -> str:
+        return f"TravelTime(speed={self.speed}, overhead={self.overhead})"
+
+
+def as_cost(cost) -> ActionCost:
+    """None -> :class:`TravelDistance`; a callable is used as it is."""
+    if cost is None:
+        return TravelDistance()
+    if not callable(cost):
+        raise ValidationError(f"cost must be callable as cost(action, travel (..., F)) -> (...), got {cost!r}")
+    return cost
