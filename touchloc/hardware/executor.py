@@ -77,7 +77,11 @@ class GuardedTouchExecutor:
     log : SessionLog or path, optional
         Where every executed touch is appended.
     move_timeout : float
-        Longest wait for one step (s).
+        Shortest time (s) allowed for one move before it counts as stuck (moves whose
+        expected duration is long get three times that duration plus a second).
+    retreat : bool
+        Move the finger back to the start of the line and to the rest posture after
+        each touch (default True).
     """
 
     def __init__(self, hand, tactile, *, kinematics: SDH2Kinematics | None = None, hand_pose=None,
@@ -206,8 +210,8 @@ class GuardedTouchExecutor:
         return result
 
     def _move(self, angles) -> np.ndarray:
-        self.hand.move(angles)
-        return self.hand.wait_until_idle(self.move_timeout)
+        duration = self.hand.move(angles)
+        return self.hand.wait_until_idle(max(self.move_timeout, 3.0 * duration + 1.0))
 
     def _run(self, touch: GuardedTouch, plan: TouchPlan):
         hand, kin = self.hand, self.kinematics

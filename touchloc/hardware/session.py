@@ -171,21 +171,22 @@ def replay(path_or_records, estimator, region=None):
     ----------
     path_or_records : path or list of SessionRecord
     estimator
-        A filter with ``update(contacts)`` (each touch's contacts in turn; returns
-        ``estimator.belief``), a static estimator with ``localize(contacts, region)`` (all
-        contacts at once), or a callable ``f(contacts) -> anything``.
-    region : optional
+        A static estimator with ``localize(contacts, region)`` (all contacts at once;
+        used when ``region`` is given), a filter with ``update(contacts)`` and ``belief``
+        (each touch's contacts in turn; returns ``estimator.belief``; initialise it
+        first), or a callable ``f(contacts) -> anything``.
+    region : PoseRegion, optional
         The pose region for static estimators.
     """
     recs = read_session(path_or_records) if isinstance(path_or_records, (str, Path)) else list(path_or_records)
+    if region is not None and hasattr(estimator, "localize"):
+        return estimator.localize(session_contacts(recs), region)
     if hasattr(estimator, "update") and hasattr(estimator, "belief"):
         for r in recs:
             if r.result.contact is not None and len(r.result.contact):
                 estimator.update(r.result.contact)
         return estimator.belief
-    contacts = session_contacts(recs)
-    if hasattr(estimator, "localize"):
-        return estimator.localize(contacts, region)
     if callable(estimator):
-        return estimator(contacts)
-    raise ValidationError("estimator must have update(contacts), localize(contacts, region) or be callable")
+        return estimator(session_contacts(recs))
+    raise ValidationError("estimator must have localize(contacts, region) (pass region=), "
+                          "update(contacts) and belief, or be callable")

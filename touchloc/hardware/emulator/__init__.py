@@ -10,7 +10,8 @@ from ._faults import FAULT_KINDS, Fault, FaultPlan
 from ._sim import SimHand, SimWorld
 from .dsacon import DEFAULT_SHAPES, DSACON32mEmulator
 from .sdh2 import SDH2Emulator
+from .rig import REST_DEG, EmulatedRig
 from .servers import CANServer, PtyServer, TCPServer
 
-__all__ = ["SDH2Emulator", "DSACON32mEmulator", "DEFAULT_SHAPES", "SimHand", "SimWorld", "TCPServer", "PtyServer", "CANServer",
+__all__ = ["EmulatedRig", "REST_DEG", "SDH2Emulator", "DSACON32mEmulator", "DEFAULT_SHAPES", "SimHand", "SimWorld", "TCPServer", "PtyServer", "CANServer",
            "FaultPlan", "Fault", "FAULT_KINDS"]

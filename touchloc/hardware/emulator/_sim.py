@@ -120,8 +120,8 @@ class SimHand:
         self.world = world
         self.time_scale = float(time_scale)
         self.dt = float(dt)
-        #: most integration steps per update; beyond it the simulated time runs slow
-        self.max_substeps = 25
+        #: most integration steps per update; beyond it the steps get longer than dt
+        self.max_substeps = 100
         self.lock = threading.RLock()
         self.p_min, self.p_max = (x.copy() for x in DEFAULT_ANGLE_LIMITS_DEG)
         self.vlim = DEFAULT_VLIM_DEG.copy()
@@ -150,9 +150,9 @@ class SimHand:
             n = int(math.ceil(span / self.dt))
             if n <= 0:
                 return
+            if n > self.max_substeps:  # polled rarely (or a slow machine): coarser steps
+                n = self.max_substeps
             h = span / n
-            if n > self.max_substeps:  # too slow to keep up: let device time lag behind
-                n, h = self.max_substeps, self.dt
             for _ in range(n):
                 if not self._step(h):
                     break
