@@ -120,29 +120,39 @@ def aev_quantize(Z, n_ref: int, *, epochs: int = 30, eta=(0.5, 0.01), equalize: 
     """
     Z = np.asarray(Z, dtype=np.float64)
     rng = as_rng(rng)
-    n = len(Z)
+    n, d = Z.shape
     k = max(1, min(int(n_ref), n))
-    refs = Z[rng.choice(n, size=k, replace=False)].copy()
     if k == 1:
-        refs[0] = Z.mean(axis=0)
-        return refs, np.zeros(n, dtype=int)
-    sq = np.einsum("ij,ij->i", Z, Z)
+        return Z.mean(axis=0, keepdims=True), np.zeros(n, dtype=int)
+    # Every reference is always an affine combination of samples (they start as samples
+    # and move towards samples), so the rule runs exactly on coefficients C with
+    # refs = C @ Z, using the Gram matrix: O(k n) instead of O(k d) per step.
+    G = Z @ Z.T
+    C = np.zeros((k, n))
+    C[np.arange(k), rng.choice(n, size=k, replace=False)] = 1.0
+    CG = C @ G
     epochs = max(1, int(epochs))
     rates = eta[0] * (eta[1] / eta[0]) ** (np.arange(epochs) / max(epochs - 1, 1))
     for e, rate in enumerate(rates):
         counts = np.zeros(k, dtype=int)
         members = [[] for _ in range(k)]
+        rn = np.einsum("ij,ij->i", C, CG)
         for i in rng.permutation(n):
-            d = np.einsum("ij,ij->i", refs, refs) - 2.0 * refs @ Z[i] + sq[i]
-            w = int(np.argmin(d))
-            refs[w] += rate * (Z[i] - refs[w])
+            w = int(np.argmin(rn - 2.0 * CG[:, i]))
+            C[w] *= 1.0 - rate
+            C[w, i] += rate
+            CG[w] = (1.0 - rate) * CG[w] + rate * G[i]
+            rn[w] = C[w] @ CG[w]
             counts[w] += 1
             members[w].append(i)
         if e < epochs - 1:
             lo, hi = int(np.argmin(counts)), int(np.argmax(counts))
             if counts[lo] < equalize * n / k and counts[hi] > 1:
                 j = members[hi][int(rng.integers(len(members[hi])))]
-                refs[lo] = refs[hi] + 0.5 * (Z[j] - refs[hi])
+                C[lo] = 0.5 * C[hi]
+                C[lo, j] += 0.5
+                CG[lo] = C[lo] @ G
+    refs = C @ Z
     return refs, _nearest(Z, refs)
 
 
@@ -172,27 +182,39 @@ def svd_pca(Zc, n_pc: int) -> np.ndarray:
 
 
 def _svd_pca_batched(cells, n_pc, d):
-    """Local PCA of every cell with one batched SVD of zero-padded (n_cells, m, d) data."""
-    m = max(len(c) for c in cells)
-    stack = np.zeros((len(cells), max(m, 1), d))
+    """Local PCA of every cell at once, from the batched Gram matrices of its samples.
+
+    For a cell's centred samples Zc (m, d) with m << d, the right singular vectors are
+    ``V = diag(1/s) U^T Zc`` where ``Zc Zc^T = U diag(s^2) U^T``: one batched (m, m)
+    eigendecomposition of zero-padded cells replaces d-dimensional work.
+    """
+    m = max(max(len(c) for c in cells), 1)
+    stack = np.zeros((len(cells), m, d))
     for i, c in enumerate(cells):
         stack[i, : len(c)] = c
-    _, s, Vt = np.linalg.svd(stack, full_matrices=False)
+    G = np.matmul(stack, stack.transpose(0, 2, 1))
+    ev, U = np.linalg.eigh(G)  # ascending
+    ev, U = ev[:, ::-1], U[:, :, ::-1]
     W = np.zeros((len(cells), int(n_pc), d))
     for i in range(len(cells)):
-        r = min(int(n_pc), int(np.sum(s[i] > 1e-10 * max(s[i, 0], 1e-300))))
-        W[i, :r] = Vt[i, :r]
+        top = max(float(ev[i, 0]), 1e-300)
+        r = min(int(n_pc), int(np.sum(ev[i] > 1e-12 * top)))
+        if r:
+            V = (U[i, :, :r].T @ stack[i]) / np.sqrt(ev[i, :r])[:, None]
+            W[i, :r] = V / np.linalg.norm(V, axis=1, keepdims=True)
     return W
 
 
-def sanger_pca(Zc, n_pc: int, *, epochs: int = 300, eta=(0.5, 0.02), rng=None, space: str = "auto",
+def sanger_pca(Zc, n_pc: int, *, epochs: int = 300, eta=(0.2, 0.005), rng=None, space: str = "auto",
                W0=None) -> np.ndarray:
     """Leading principal directions by Sanger's rule (the generalised Hebbian algorithm).
 
     Online updates, one sample at a time in random order, as in seed 002:
     ``W += eta_t * (y x^T - LT(y y^T) W)`` with ``y = W x`` and LT the lower triangle.
     The step ``eta_t`` is the given rate divided by the mean squared norm of the data
-    (an upper bound of the largest eigenvalue), decaying geometrically over the epochs.
+    (an upper bound of the largest eigenvalue), decaying geometrically over the epochs,
+    and never more than ``0.5 / |x|^2`` for the sample at hand (the rule diverges when
+    ``eta |x|^2`` approaches 2).
 
     When there are fewer samples than dimensions (``space="auto"`` picks this), the rule
     is run on coefficients C with W = C Zc: every update of the rule is a combination of
@@ -235,22 +257,25 @@ def sanger_pca(Zc, n_pc: int, *, epochs: int = 300, eta=(0.5, 0.02), rng=None, s
     epochs = max(1, int(epochs))
     rates = (eta[0] * (eta[1] / eta[0]) ** (np.arange(epochs) / max(epochs - 1, 1))) / scale
     tril = np.tril(np.ones((k, k)))
+    sq = np.einsum("ij,ij->i", Zc, Zc)
+    cap = 0.5 / np.where(sq > 0, sq, np.inf)
     if space == "input":
         W = rng.standard_normal((k, d)) / np.sqrt(d) * 0.1 if W0 is None else np.array(W0, dtype=np.float64)
         for rate in rates:
             for i in rng.permutation(n):
                 x = Zc[i]
                 y = W @ x
-                W += rate * (np.outer(y, x) - (tril * np.outer(y, y)) @ W)
+                W += min(rate, cap[i]) * (np.outer(y, x) - (tril * np.outer(y, y)) @ W)
         return W
     # coefficient space: W = C @ Zc, y = C @ G[:, i]
     G = Zc @ Zc.T
     C = rng.standard_normal((k, n)) / np.sqrt(n * scale) * 0.1
     for rate in rates:
         for i in rng.permutation(n):
+            r = min(rate, cap[i])
             y = C @ G[:, i]
-            C -= rate * (tril * np.outer(y, y)) @ C
-            C[:, i] += rate * y
+            C -= r * (tril * np.outer(y, y)) @ C
+            C[:, i] += r * y
     return C @ Zc
 
 
@@ -369,7 +394,8 @@ class SequenceClassifier(_SequenceModel):
     n_llm : int
         Nodes of each cell's Local Linear Map (seed 002: 20).
     pca : {"svd", "sanger"}
-        How the local PCs are computed: a direct batched SVD (default) or Sanger's rule
+        How the local PCs are computed: a direct batched SVD (default; through the
+        (m, m) Gram matrices of the cells, exact up to rounding) or Sanger's rule
         as in seed 002 (same subspace up to convergence, much slower).
     align : bool
         Centre-of-gravity alignment of each whole sequence (seed 002).
@@ -407,7 +433,7 @@ class SequenceClassifier(_SequenceModel):
 
     def __init__(self, n_vq: int = 6, n_pc: int = 8, n_llm: int = 20, *, pca: str = "svd", align: bool = True,
                  scale: float = 4095.0, vq_epochs: int = 30, llm_epochs: int = 30, sanger_epochs: int = 300,
-                 ridge: float = 1.0, reject_quantile: float | None = None, reject_folds: int = 4,
+                 ridge: float = 1.0, reject_quantile: float | None = None, reject_folds: int = 10,
                  unknown_label=None, rng=None):
         for name, v in (("n_vq", n_vq), ("n_pc", n_pc), ("n_llm", n_llm)):
             if int(v) != v or v < 1:
@@ -480,7 +506,7 @@ class SequenceClassifier(_SequenceModel):
 
     # -- application -----------------------------------------------------------------
     def _project(self, Z, cell):
-        return np.einsum("nkd,nd->nk", self.components_[cell], Z - self.means_[cell])
+        return _project(Z, cell, self.means_, self.components_)
 
     def transform(self, X):
         """Cell index (n,) and local-PCA feature vectors (n, n_pc) of sequences X."""
@@ -516,14 +542,26 @@ class SequenceClassifier(_SequenceModel):
         return _residual(self._features(X), self.references_, self.means_, self.components_)
 
 
+def _project(Z, cell, means, comps):
+    """(n, n_pc) projections of rows of Z onto the local PCs of their cells."""
+    P = np.zeros((len(Z), comps.shape[1]))
+    for i in np.unique(cell):
+        sel = cell == i
+        P[sel] = (Z[sel] - means[i]) @ comps[i].T
+    return P
+
+
 def _residual(Z, refs, means, comps):
     cell = _nearest(Z, refs)
-    C = Z - means[cell]
-    P = np.einsum("nkd,nd->nk", comps[cell], C)
-    R = C - np.einsum("nkd,nk->nd", comps[cell], P)
-    r2 = np.einsum("nd,nd->n", R, R)
-    c2 = np.einsum("nd,nd->n", C, C)
-    return np.sqrt(r2 / np.where(c2 > 0, c2, 1.0))
+    out = np.zeros(len(Z))
+    for i in np.unique(cell):
+        sel = cell == i
+        C = Z[sel] - means[i]
+        R = C - (C @ comps[i].T) @ comps[i]
+        r2 = np.einsum("nd,nd->n", R, R)
+        c2 = np.einsum("nd,nd->n", C, C)
+        out[sel] = np.sqrt(r2 / np.where(c2 > 0, c2, 1.0))
+    return out
 
 
 class NearestNeighbourClassifier(_SequenceModel):

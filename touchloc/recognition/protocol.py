@@ -169,7 +169,9 @@ def procedural_objects() -> dict:
     """Seven primitive shapes of similar size (5-8 cm), by name.
 
     Harder than the bundled set: several pairs differ only in detail (a cylinder and a
-    capsule, a box and a slightly larger box).
+    capsule, two boxes 1 cm apart in length). Boxes differing only in height would not
+    do: a pad that never reaches the table feels the same top edges (see
+    docs/recognition.md).
     """
     import trimesh
 
@@ -177,7 +179,7 @@ def procedural_objects() -> dict:
 
     shapes = {
         "box": trimesh.creation.box(extents=(0.06, 0.05, 0.04)),
-        "box_tall": trimesh.creation.box(extents=(0.06, 0.05, 0.055)),
+        "box_long": trimesh.creation.box(extents=(0.07, 0.05, 0.04)),
         "cylinder": trimesh.creation.cylinder(radius=0.028, height=0.05, sections=48),
         "capsule": trimesh.creation.capsule(radius=0.025, height=0.03, count=(24, 24)),
         "sphere": trimesh.creation.icosphere(subdivisions=3, radius=0.03),

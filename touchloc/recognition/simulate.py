@@ -18,6 +18,9 @@ turns: it pivots about ``s(n)`` until a new vertex takes over. The pad rolls wit
 slipping: the point of the pad touching the object moves over the pad by the in-plane
 displacement of ``s(n)`` (so, as the seed notes, a point of the object keeps appearing at
 the same sensor location); when that point nears the pad's border the pad slides instead.
+Where only an edge or a corner of the object touches and the texels barely feel it,
+the pad is pressed further along its normal (up to five times the contact indentation,
+within the layer thickness), as a force-controlled arm keeping contact would.
 Tilting stops at ``max_tilt`` or when the pad's border would touch the table (the seed's
 border-pressure rule); the roll-around keeps the tilt but lowers it where the table
 would be touched. Timing follows a robot limited in linear and angular speed, so larger
@@ -248,6 +251,21 @@ class TactileScanner:
         R_all, c_all, ph_all = R_all[idx], c_all[idx], ph_all[idx]
 
         depth = self._depth(obj, object_pose, R_all, c_all)
+        # keeping contact: where an edge or a corner barely touches, press further along
+        # the normal (force control), in steps up to the layer thickness
+        weak = np.flatnonzero((ph_all > 0) & (depth.reshape(len(idx), -1).max(axis=1) < 0.5 * d_contact))
+        for m in (1.5, 2.25, 3.4, 5.0):
+            if len(weak) == 0:
+                break
+            extra = min((m - 1.0) * d_contact, cfg.layer_thickness - d_contact)
+            if extra <= 0:
+                break
+            c_try = c_all[weak] - extra * R_all[weak, :, 2]
+            d_try = self._depth(obj, object_pose, R_all[weak], c_try)
+            ok = d_try.reshape(len(weak), -1).max(axis=1) >= 0.5 * d_contact
+            c_all[weak[ok]] = c_try[ok]
+            depth[weak[ok]] = d_try[ok]
+            weak = weak[~ok]
         frames = np.zeros((cfg.n_frames, cfg.n_texels, cfg.n_texels), dtype=np.uint16)
         frames[: len(idx)] = self._readings(depth, gain, rng)
         poses = np.tile(np.eye(4), (len(idx), 1, 1))
@@ -374,7 +392,15 @@ class TactileScanner:
         origins = start[:, None, :] + np.matmul(uv[None], Ro[:, :, :2].transpose(0, 2, 1))
         origins = origins.reshape(-1, 3)
         dirs = np.repeat(-n, len(uv), axis=0)
-        dist, _, _ = obj.ray_cast(origins, dirs)
+        # only rays whose segment [0, back] passes through the bounding sphere can count
+        b = obj.bounds
+        centre, radius = b.mean(axis=0), 0.5 * float(np.linalg.norm(b[1] - b[0])) + 1e-6
+        rel = centre - origins
+        t = np.clip(np.einsum("ij,ij->i", rel, dirs), 0.0, back)
+        near = np.einsum("ij,ij->i", rel - t[:, None] * dirs, rel - t[:, None] * dirs) <= radius * radius
+        dist = np.full(len(origins), np.inf)
+        if np.any(near):
+            dist[near] = obj.ray_cast(origins[near], dirs[near])[0]
         depth = np.clip(back - dist, 0.0, cfg.layer_thickness)  # inf (miss) -> 0
         # a texel feels the deepest indentation within its area
         depth = depth.reshape(K, cfg.n_texels ** 2, len(sub)).max(axis=2)
