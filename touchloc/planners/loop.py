@@ -1,0 +1,180 @@
+"""The active-localisation loop: plan a touch, execute it, update the belief, repeat."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._util import as_rng, progress
+from ..errors import ValidationError
+from .actions import TouchResult, fingers_of
+from .metrics import add_s, expected_add_s
+from .simulate import execute
+from .update import TouchFilter
+
+__all__ = ["SimulatedWorld", "Step", "ActiveResult", "active_localization"]
+
+
+class SimulatedWorld:
+    """A mesh at a hidden pose that executes guarded touches with sensor noise.
+
+    Parameters
+    ----------
+    obj : MeshObject
+    true_pose : (4, 4) float
+    noise_pos : float
+        Contact position noise (m, standard deviation per axis).
+    noise_nor : float
+        Contact normal noise (per component, before renormalising).
+    rng : None, int or Generator
+    """
+
+    def __init__(self, obj, true_pose, *, noise_pos: float = 0.001, noise_nor: float = 0.05, rng=None):
+        self.obj = obj
+        self.true_pose = np.asarray(true_pose, dtype=float).reshape(4, 4)
+        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
+        self.rng = as_rng(rng)
+
+    def execute(self, action) -> list:
+        """Run an action; returns one TouchResult per finger."""
+        return execute(self.obj, self.true_pose, action, noise_pos=self.noise_pos, noise_nor=self.noise_nor,
+                       rng=self.rng)
+
+
+@dataclass
+class Step:
+    """One touch of the loop (index 0 is the prior, before any touch)."""
+
+    index: int
+    action: object
+    results: list
+    entropy: float
+    expected_error: float
+    error: float
+    plan_time: float
+    update_time: float
+    map_pose: np.ndarray
+    plan: object = None
+
+    @property
+    def hits(self) -> int:
+        return sum(r.hit for r in self.results)
+
+
+@dataclass
+class ActiveResult:
+    """Record of an active-localisation run."""
+
+    steps: list
+    belief: object
+    confident: bool
+    true_pose: np.ndarray = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def touches(self) -> int:
+        """Number of actions executed."""
+        return len(self.steps) - 1
+
+    @property
+    def error(self) -> float:
+        """ADD-S of the final MAP pose (m; NaN without a known true pose)."""
+        return self.steps[-1].error
+
+    def table(self) -> str:
+        """One line per touch: touch, hit/miss, entropy, expected and true ADD-S, times."""
+        lines = [f"{'touch':>5}  {'action':<12} {'result':<8} {'entropy':>8} {'E[ADD-S]':>9} {'ADD-S':>8} "
+                 f"{'plan':>6} {'update':>6}",
+                 f"{'':>5}  {'':<12} {'':<8} {'(nats)':>8} {'(mm)':>9} {'(mm)':>8} {'(s)':>6} {'(s)':>6}"]
+        for s in self.steps:
+            name = "prior" if s.action is None else (getattr(s.action, "name", "") or type(s.action).__name__)
+            n = len(s.results)
+            res = "-" if s.action is None else ("miss" if s.hits == 0 else ("hit" if n == 1 else f"{s.hits}/{n} hit"))
+            lines.append(f"{s.index:>5}  {name[:12]:<12} {res:<8} {s.entropy:8.2f} {s.expected_error * 1e3:9.2f} "
+                         f"{s.error * 1e3:8.2f} {s.plan_time:6.2f} {s.update_time:6.2f}")
+        return "\n".join(lines)
+
+
+def active_localization(world, model, region, planner, candidates, *, n_particles: int = 2000,
+                        max_touches: int = 20, confidence: float = 0.0025, min_touches: int = 1,
+                        updater=None, rng=None, progress_bar=None, keep_plans: bool = False,
+                        callback=None) -> ActiveResult:
+    """Localise an object by touching it where the planner says, until the belief is confident.
+
+    Parameters
+    ----------
+    world : object with ``execute(action) -> list of TouchResult``
+        A :class:`SimulatedWorld` or a real hand's executor; its ``true_pose`` (if
+        any) gives the reported errors.
+    model : ProximityModel
+        Measurement model of the contacts.
+    region : PoseRegion
+        Where the object may be (the prior).
+    planner : OneStepPlanner, TwoStepPlanner, RandomPlanner or anything with ``plan``
+    candidates : list or callable
+        A fixed list of actions, or ``candidates(belief, rng) -> list`` called each step
+        (e.g. a :class:`~touchloc.planners.candidates.CandidateGenerator`).
+    n_particles : int
+        Particles of the default updater (:class:`TouchFilter`).
+    max_touches : int
+    confidence : float
+        Stop when the belief's expected ADD-S of its MAP pose is below this (m).
+    updater : object, optional
+        With ``belief`` and ``update(results) -> belief``; default a TouchFilter.
+    rng : None, int or Generator
+    keep_plans : bool
+        Keep every Plan (with its candidates' scores) in the steps.
+    callback : callable, optional
+        ``callback(step)`` after each touch.
+
+    Returns
+    -------
+    ActiveResult
+    """
+    if not hasattr(world, "execute"):
+        raise ValidationError("world must have execute(action) -> list of TouchResult")
+    if int(max_touches) < 0:
+        raise ValidationError(f"max_touches must be >= 0, got {max_touches}")
+    rng = as_rng(rng)
+    obj = model.obj
+    if updater is None:
+        updater = TouchFilter(model, region, n_particles, rng=rng)
+    truth = getattr(world, "true_pose", None)
+
+    def record(i, action, results, t_plan, t_upd, plan):
+        b = updater.belief
+        T = b.map_pose()
+        err = add_s(obj, T, truth) if truth is not None else float("nan")
+        try:
+            h = b.entropy("gaussian")
+        except Exception:  # noqa: BLE001 - entropy of a degenerate belief
+            h = float("nan")
+        return Step(i, action, results, h, expected_add_s(b, obj), err, t_plan, t_upd, T,
+                    plan if keep_plans else None)
+
+    steps = [record(0, None, [], 0.0, 0.0, None)]
+    confident = False
+    it = progress(range(1, int(max_touches) + 1), desc="touches", enabled=progress_bar)
+    for i in it:
+        b = updater.belief
+        cands = candidates(b, rng) if callable(candidates) else candidates
+        t0 = time.perf_counter()
+        plan = planner.plan(b, cands, rng=rng)
+        t1 = time.perf_counter()
+        results = world.execute(plan.action)
+        if not all(isinstance(r, TouchResult) for r in results):
+            raise ValidationError("world.execute must return TouchResult objects")
+        t2 = time.perf_counter()
+        updater.update(results)
+        t3 = time.perf_counter()
+        step = record(i, plan.action, results, t1 - t0, t3 - t2, plan)
+        steps.append(step)
+        if callback is not None:
+            callback(step)
+        if i >= min_touches and step.expected_error < confidence:
+            confident = True
+            break
+    return ActiveResult(steps, updater.belief, confident, truth,
+                        {"planner": getattr(planner, "name", type(planner).__name__)})
