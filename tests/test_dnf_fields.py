@@ -150,7 +150,9 @@ def test_field2d_peak_at_coincidence_of_two_ridges_and_active_method_matches_fft
     B = (4.5 * (bump(300.0, amp=1.0) > 0.5)).astype(np.float32)
     fields = {m: Field2D((N, N), p, method=m) for m in ("active", "fft")}
     for _ in range(5):
-        outs = {m: f.step((A[:, None], B[None, :])) for m, f in fields.items()}
+        for f in fields.values():
+            f.step((A[:, None], B[None, :]))
+    outs = {m: f.output() for m, f in fields.items()}
     f = outs["active"]
     i, j = np.argwhere(f > 0.5).mean(axis=0)               # centre of the active block
     assert abs(i - 30) <= 1 and abs(j - 300) <= 1 and f.max() > 0.9
@@ -160,6 +162,22 @@ def test_field2d_peak_at_coincidence_of_two_ridges_and_active_method_matches_fft
     lat_f = fields["active"].lateral(method="fft")
     np.testing.assert_allclose(lat_a, lat_f, atol=1e-4)
     assert np.argmax(diagonal_sum(f)) == 270                # 300 - 30
+    rows, cols, block = fields["active"].active_block()
+    assert set(rows) <= set(range(20, 41)) and set(cols) <= set(range(290, 311))
+    np.testing.assert_allclose(block, f[np.ix_(rows, cols)])
+
+
+def test_field2d_slow_field_active_method_matches_fft_with_generic_stimulus():
+    p = FieldParams(tau=3.0, h=-6.0, beta=4.0, c_exc=0.4, sigma_exc=3 * DEG, c_inh=0.05, sigma_inh=10 * DEG,
+                    c_glob=0.001)
+    S = np.zeros((N, N), np.float32)
+    S[100:108, 50:60] = 9.0
+    a, b = Field2D((N, N), p, method="active"), Field2D((N, N), p, method="fft")
+    for _ in range(15):
+        a.step(S)
+        b.step(S)
+    assert a.output().max() > 0.9
+    np.testing.assert_allclose(a.u, b.u, atol=1e-3)
 
 
 def test_field_validation():

@@ -261,9 +261,9 @@ class OrientationTracker:
         f_match = self.match.step(p.surface_to_match * np.minimum(broad, 1.0) + p.memory_to_match * P)
         if p.correct:
             k = self._f32(p.to_comparison)
-            f_c = self.comparison.step(((f_s * k).astype(np.float32)[:, None],
-                                        (f_match * k).astype(np.float32)[None, :]))
-            diag = self._diagonal(f_c)
+            self.comparison.step(((f_s * k).astype(np.float32)[:, None],
+                                  (f_match * k).astype(np.float32)[None, :]))
+            diag = self._diagonal()
             f_e = self.error.step(p.comparison_to_error * diag * self._window)
             w = np.where(f_e > 0.5, f_e, 0.0)
             tot = w.sum()
@@ -276,18 +276,16 @@ class OrientationTracker:
                 self.last_error = 0.0
         self.n_steps += 1
 
-    def _diagonal(self, F: np.ndarray) -> np.ndarray:
+    def _diagonal(self) -> np.ndarray:
         """Diagonal read-out of the comparison output: ``out[d] = sum_x F[x, x + d]``.
 
-        Only sites with output above the comparison field's ``eps`` are summed (each left
-        out site is below ``eps``, so each entry errs by less than ``n * eps``).
+        Only the active block is summed (every other site's output is below the comparison
+        field's ``eps``, so each entry errs by less than ``n_sites * eps``).
         """
         n = self.n_sites
-        rows = np.flatnonzero(F.max(axis=1) > self.comparison.eps)
+        rows, cols, block = self.comparison.active_block()
         if rows.size == 0:
             return np.zeros(n)
-        cols = np.flatnonzero(F[rows].max(axis=0) > self.comparison.eps)
-        block = F[np.ix_(rows, cols)]
         d = (cols[None, :] - rows[:, None]) % n
         return np.bincount(d.ravel(), weights=block.ravel().astype(np.float64), minlength=n)
 
