@@ -127,7 +127,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     keep_plans : bool
         Keep every Plan (with its candidates' scores) in the steps.
     callback : callable, optional
-        ``callback(step)`` after each touch.
+        ``callback(step)`` for the prior (step 0) and after each touch.
 
     Returns
     -------
@@ -155,6 +155,8 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
                     plan if keep_plans else None)
 
     steps = [record(0, None, [], 0.0, 0.0, None)]
+    if callback is not None:
+        callback(steps[0])
     confident = False
     it = progress(range(1, int(max_touches) + 1), desc="touches", enabled=progress_bar)
     for i in it:
