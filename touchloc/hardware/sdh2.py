@@ -24,7 +24,7 @@ from ..errors import (DeviceDisconnected, FirmwareError, HardwareError, Hardware
 from ._transport import CANLink, Link, as_link
 
 __all__ = ["SDH2", "SDHFirmwareError", "AxisState", "SDH_ERROR_NAMES", "GripPreset",
-           "DEFAULT_ANGLE_LIMITS_DEG", "parse_reply"]
+           "DEFAULT_ANGLE_LIMITS_DEG", "parse_reply", "parse_values", "LineReader"]
 
 #: firmware error names by code E<n> (sdh2.md, "Codes")
 SDH_ERROR_NAMES = (
@@ -76,7 +76,8 @@ class GripPreset(enum.IntEnum):
     SPHERICAL = 3
 
 
-_REPLY_RE = re.compile(r"^([A-Z_]+)(\(\d+\))?(?:=(.*))?$")
+_REPLY_RE = re.compile(r"^([A-Z_]+)(\([0-9]+\))?(?:=(.*))?$", re.ASCII | re.DOTALL)
+_ERROR_RE = re.compile(r"^E([0-9]{1,6})$", re.ASCII)
 
 
 def parse_reply(line: str):
@@ -87,8 +88,9 @@ def parse_reply(line: str):
     :class:`SDHFirmwareError` for ``E<n>`` and :class:`ProtocolError` for anything else
     that is not a reply.
     """
-    if len(line) > 1 and line[0] == "E" and line[1:].isdigit():
-        code = int(line[1:])
+    em = _ERROR_RE.match(line)
+    if em is not None:
+        code = int(em.group(1))
         name = SDH_ERROR_NAMES[code] if code < len(SDH_ERROR_NAMES) else f"UNKNOWN_CODE_{code}"
         raise SDHFirmwareError(code, name, f"SDH-2 firmware error E{code} ({name})")
     m = _REPLY_RE.match(line)
@@ -110,6 +112,48 @@ def _floats(values, n, what):
     if not np.all(np.isfinite(out)):
         raise ProtocolError(f"SDH-2 {what}: non-finite values {values[:10]}")
     return out
+
+
+class LineReader:
+    """Splits the hand's reply bytes into text lines (CR/LF stripped).
+
+    Raises :class:`ProtocolError` for a line that is not ASCII or longer than
+    ``max_line`` bytes (the buffer is dropped, so reading can go on afterwards).
+    """
+
+    def __init__(self, max_line: int = _LINE_MAX):
+        self.max_line = int(max_line)
+        self._buf = bytearray()
+
+    def feed(self, data: bytes) -> None:
+        self._buf += data
+
+    def clear(self) -> None:
+        self._buf.clear()
+
+    def pending(self) -> bytes:
+        return bytes(self._buf)
+
+    def next_line(self):
+        """The next complete line, or None when no line end has arrived yet."""
+        i = self._buf.find(b"\n")
+        if i < 0:
+            if len(self._buf) > self.max_line:
+                n = len(self._buf)
+                self._buf.clear()
+                raise ProtocolError(f"SDH-2 reply line longer than {self.max_line} bytes ({n}) without a line end")
+            return None
+        raw = bytes(self._buf[:i])
+        del self._buf[:i + 1]
+        try:
+            return raw.decode("ascii").strip("\r\n\x00 ")
+        except UnicodeDecodeError:
+            raise ProtocolError(f"SDH-2 reply is not ASCII: {raw[:40]!r}") from None
+
+
+def parse_values(values, n: int, what: str = "reply") -> np.ndarray:
+    """``n`` finite floats from reply values (ProtocolError otherwise)."""
+    return _floats(values, n, what)
 
 
 @dataclass(frozen=True)
@@ -156,7 +200,7 @@ class SDH2:
         self.link: Link = as_link(port)
         self.timeout = float(timeout)
         self.stop_on_fault = bool(stop_on_fault)
-        self._buf = bytearray()
+        self._lines = LineReader()
         lo, hi = DEFAULT_ANGLE_LIMITS_DEG
         self._lo = np.radians(lo)
         self._hi = np.radians(hi)
@@ -189,7 +233,7 @@ class SDH2:
         """
         self._write(b" \r\n")
         self.link.discard_input(quiet=0.05, limit=0.5)
-        self._buf.clear()
+        self._lines.clear()
         self._version = self.firmware_version()
         self._lo = np.radians(self._get_values("p_min", N_AXES))
         self._hi = np.radians(self._get_values("p_max", N_AXES))
@@ -204,23 +248,15 @@ class SDH2:
 
     def _readline(self, deadline: float) -> str:
         while True:
-            i = self._buf.find(b"\n")
-            if i >= 0:
-                raw = bytes(self._buf[:i])
-                del self._buf[:i + 1]
-                try:
-                    return raw.decode("ascii").strip("\r\n\x00 ")
-                except UnicodeDecodeError:
-                    raise ProtocolError(f"SDH-2 reply is not ASCII: {raw[:40]!r}") from None
-            if len(self._buf) > _LINE_MAX:
-                n = len(self._buf)
-                self._buf.clear()
-                raise ProtocolError(f"SDH-2 reply line longer than {_LINE_MAX} bytes ({n}) without a line end")
+            line = self._lines.next_line()
+            if line is not None:
+                return line
             left = deadline - time.monotonic()
             if left <= 0:
+                partial = self._lines.pending()
                 raise HardwareTimeout(f"SDH-2 did not answer within {self.timeout:g} s"
-                                      + (f" (partial reply {bytes(self._buf[:40])!r})" if self._buf else ""))
-            self._buf += self.link.read_some(min(left, 0.1))
+                                      + (f" (partial reply {partial[:40]!r})" if partial else ""))
+            self._lines.feed(self.link.read_some(min(left, 0.1)))
 
     def _fault(self, exc: HardwareError) -> HardwareError:
         """Send ``stop`` (best effort) and return ``exc`` for raising."""
