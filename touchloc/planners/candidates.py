@@ -186,7 +186,9 @@ class CandidateGenerator:
     def __call__(self, belief, rng=None) -> list:
         rng = as_rng(rng)
         out = list(self.world)
-        T = belief.map_pose()
+        from .metrics import best_pose
+
+        T = best_pose(belief)
         if self.n_relative:
             out += relative_pool(T, self.obj, self.n_relative, rng=rng, probe_radius=self.probe_radius,
                                  min_normal_z=-0.2 if self.planar else None)

@@ -10,7 +10,7 @@ import numpy as np
 from .._util import as_rng, progress
 from ..errors import ValidationError
 from .actions import TouchResult, fingers_of
-from .metrics import add_s, expected_add_s
+from .metrics import add_s, best_pose, expected_add_s
 from .simulate import execute
 from .update import TouchFilter
 
@@ -98,7 +98,7 @@ class ActiveResult:
 
 
 def active_localization(world, model, region, planner, candidates, *, n_particles: int = 2000,
-                        max_touches: int = 20, confidence: float = 0.0025, min_touches: int = 1,
+                        max_touches: int = 20, confidence: float = 0.003, min_touches: int = 1,
                         updater=None, rng=None, progress_bar=None, keep_plans: bool = False,
                         callback=None) -> ActiveResult:
     """Localise an object by touching it where the planner says, until the belief is confident.
@@ -145,7 +145,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
 
     def record(i, action, results, t_plan, t_upd, plan):
         b = updater.belief
-        T = b.map_pose()
+        T = best_pose(b)
         err = add_s(obj, T, truth) if truth is not None else float("nan")
         try:
             h = b.entropy("gaussian")

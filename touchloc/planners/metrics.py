@@ -7,7 +7,15 @@ from scipy.spatial import cKDTree
 
 from .._util import as_poses, as_rng
 
-__all__ = ["add_s", "expected_add_s"]
+__all__ = ["add_s", "expected_add_s", "best_pose"]
+
+
+def best_pose(belief) -> np.ndarray:
+    """(4, 4) the belief's point estimate: ``belief.info["map_pose"]`` if an estimator
+    left one there (e.g. the particle of highest posterior density of an equally
+    weighted sample), else :meth:`ParticleBelief.map_pose`."""
+    T = belief.info.get("map_pose") if getattr(belief, "info", None) else None
+    return np.array(T, dtype=float) if T is not None else belief.map_pose()
 
 
 def _model_points(obj, n, rng):
@@ -44,16 +52,19 @@ def add_s(obj, T_est, T_true, *, n: int = 500, rng=0):
     return float(out[0]) if single else out
 
 
-def expected_add_s(belief, obj, *, n: int = 200, max_particles: int = 300, rng=0) -> float:
-    """The belief's own estimate of its error: E_X~belief[ADD-S(MAP, X)] (m).
+def expected_add_s(belief, obj, *, ref=None, n: int = 200, max_particles: int = 300, rng=0) -> float:
+    """The belief's own estimate of its error: E_X~belief[ADD-S(ref, X)] (m).
 
-    The heaviest particles holding at most ``max_particles`` (and 99 % of the weight)
-    are compared with the MAP pose; their weights are renormalised.
+    ``ref`` defaults to :func:`best_pose`. The heaviest particles holding at most
+    ``max_particles`` (and 99 % of the weight) are used, their weights renormalised
+    (an equally weighted belief contributes an evenly spaced subset).
     """
-    idx = belief.credible_set(0.99)[:max_particles]
+    idx = belief.credible_set(0.99)
+    if len(idx) > max_particles:
+        idx = np.sort(idx)[np.linspace(0, len(idx) - 1, max_particles).astype(int)]
     w = belief.weights[idx]
     w = w / w.sum()
-    ref = belief.map_pose()
+    ref = best_pose(belief) if ref is None else np.asarray(ref, dtype=float)
     # ADD-S(MAP, X) = mean over model points at MAP of the nearest point at X; swap the
     # roles (tree at MAP, queries from X): the same up to the asymmetry of ADD-S, and one tree.
     d = add_s(obj, belief.poses[idx], ref, n=n, rng=rng)

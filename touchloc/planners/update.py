@@ -138,8 +138,13 @@ class TouchFilter:
 
     @property
     def belief(self):
-        """The current ParticleBelief."""
+        """The current ParticleBelief (equally weighted; ``info["map_pose"]`` holds the
+        particle of highest posterior density)."""
         return self._belief
+
+    def map_pose(self) -> np.ndarray:
+        """(4, 4) the particle of highest posterior density."""
+        return self.poses[int(np.argmax(self.ll + self.log_w))].copy()
 
     def _scale(self) -> float:
         C = self._belief.covariance()
@@ -206,6 +211,7 @@ class TouchFilter:
             self.log_w = np.full(self.n, -np.log(self.n))
             self._belief = ParticleBelief(self.poses, self.log_w, region=self.region)
         self.ll = l_old + l_new
+        self._belief.info["map_pose"] = self.poses[int(np.argmax(self.ll))].copy()
         self.results = old_results + results
         self.info["stages"].append(stages)
         self.info["accept"].append(float(np.mean(acc)) if acc else float("nan"))
