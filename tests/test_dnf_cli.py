@@ -2,7 +2,6 @@
 
 import argparse
 
-import numpy as np
 import pytest
 
 from touchloc.dnf import _cli, generate_rotation_dataset, save_recording

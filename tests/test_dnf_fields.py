@@ -172,6 +172,7 @@ def test_field2d_slow_field_active_method_matches_fft_with_generic_stimulus():
                     c_glob=0.001)
     S = np.zeros((N, N), np.float32)
     S[100:108, 50:60] = 9.0
+    S[np.ix_(np.r_[356:360, 0:4], np.r_[355:360, 0:3])] = 9.0       # a block across both boundaries
     a, b = Field2D((N, N), p, method="active"), Field2D((N, N), p, method="fft")
     for _ in range(15):
         a.step(S)

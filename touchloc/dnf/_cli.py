@@ -36,7 +36,7 @@ def register(sub) -> None:
 
 
 def _load(args):
-    from .data import load_recording, standard_datasets
+    from .data import load_recording
 
     if args.recording:
         files = args.recording if isinstance(args.recording, list) else [args.recording]
@@ -74,8 +74,8 @@ def run_compare(args) -> int:
 
 def run_figure(args) -> int:
     from .compare import default_estimators, plot_memories, run_estimator
-    from .data import generate_rotation_dataset, load_recording, OBJECTS
     from ..errors import ValidationError
+    from .data import OBJECTS, generate_rotation_dataset, load_recording
 
     if args.recording:
         ds = load_recording(args.recording)

@@ -390,10 +390,14 @@ class Field2D:
             w0 = _dilate(rows, r0, self.shape[0])
             w1 = _dilate(cols, r1, self.shape[1])
             part = (m0[np.ix_(w0, rows)] @ block) @ (m1[np.ix_(cols, w1)] * c)
-            if w0.size == self.shape[0] and w1.size == self.shape[1]:
-                res += part
-            else:
+            # the windows are a few contiguous runs: add run by run with slices
+            runs0, runs1 = _runs(w0), _runs(w1)
+            if len(runs0) * len(runs1) > 16:
                 res[np.ix_(w0, w1)] += part
+                continue
+            for a0, a1, p0 in runs0:
+                for b0, b1, q0 in runs1:
+                    res[a0:a1, b0:b1] += part[p0:p0 + a1 - a0, q0:q0 + b1 - b0]
 
     def lateral(self, method: str | None = None) -> np.ndarray:
         """Lateral input of eq. 1 for the current activation, shape float (see the class
@@ -451,11 +455,23 @@ def _reach(g: np.ndarray) -> int:
 
 def _dilate(idx: np.ndarray, r: int, n: int) -> np.ndarray:
     """Sorted sites within ``r`` (periodic) of any site in ``idx``."""
-    if idx.size * (2 * r + 1) >= n:
-        m = np.zeros(n, dtype=bool)
-        m[((idx[:, None] + np.arange(-r, r + 1)[None, :]) % n).ravel()] = True
-        return np.flatnonzero(m)
-    return np.unique((idx[:, None] + np.arange(-r, r + 1)[None, :]) % n)
+    if 2 * r + 1 >= n:
+        return np.arange(n)
+    m = np.zeros(n, dtype=np.int32)
+    m[idx] = 1
+    ext = np.concatenate((m[n - r:], m, m[:r])) if r else m      # ext[k] is site k - r
+    cs = np.concatenate(([0], np.cumsum(ext)))
+    return np.flatnonzero(cs[2 * r + 1:] - cs[:n] > 0)            # any mark in sites i-r..i+r
+
+
+def _runs(idx: np.ndarray):
+    """Contiguous runs of sorted unique ``idx``: list of (start, stop, offset in idx)."""
+    if idx.size == 0:
+        return []
+    br = np.flatnonzero(np.diff(idx) != 1) + 1
+    starts = np.concatenate(([0], br))
+    stops = np.concatenate((br, [idx.size]))
+    return [(int(idx[a]), int(idx[b - 1]) + 1, int(a)) for a, b in zip(starts, stops)]
 
 
 def _circulant(g: np.ndarray) -> np.ndarray:

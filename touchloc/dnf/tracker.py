@@ -22,7 +22,7 @@ time constants are in samples.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -76,7 +76,10 @@ def population_code(angles, n_sites: int, width: float, gain: float) -> np.ndarr
     (n_sites,) float
     """
     phi = site_angles(n_sites)
-    return gain * np.exp((np.cos(phi[None, :] - np.asarray(angles)[:, None]) - 1.0) / width**2).sum(axis=0)
+    a = np.asarray(angles, dtype=np.float64)
+    # cos(phi - a) = cos(phi) cos(a) + sin(phi) sin(a)
+    cosd = np.cos(a)[:, None] * np.cos(phi)[None, :] + np.sin(a)[:, None] * np.sin(phi)[None, :]
+    return gain * np.exp((cosd - 1.0) / width**2).sum(axis=0)
 
 
 @dataclass(frozen=True)
@@ -186,9 +189,6 @@ class OrientationTracker:
         # signed deviation of each error-field site from the centre (site 0), rad
         self._dev = (self.angles + np.pi) % TWO_PI - np.pi
         self._window = np.exp(-0.5 * (self._dev / p.error_window) ** 2)
-        self._cos_phi = np.cos(self.angles)
-        self._sin_phi = np.sin(self.angles)
-        self._kappa = 1.0 / p.tuning_width**2
         self._f32 = np.float32
         self.correction = 0.0
         self.odometry = 0.0
@@ -247,10 +247,7 @@ class OrientationTracker:
     def _step(self, a: np.ndarray) -> None:
         p = self.params
         # filter bank in the object frame (corrected estimate)
-        rel = a - self.orientation
-        ca, sa = np.cos(rel), np.sin(rel)
-        cosd = ca[:, None] * self._cos_phi[None, :] + sa[:, None] * self._sin_phi[None, :]
-        stim = p.input_gain * np.exp((cosd - 1.0) * self._kappa).sum(axis=0)
+        stim = population_code(a - self.orientation, self.n_sites, p.tuning_width, p.input_gain)
         # mapping pathway
         f_s = self.surface.step(stim)
         P = self.trace.P
