@@ -65,6 +65,8 @@ class SimWorld:
         b = np.asarray(obj.bounds, dtype=np.float64)
         self._center = b.mean(axis=0)
         self._reach2 = (0.5 * float(np.linalg.norm(b[1] - b[0])) + 0.005) ** 2
+        # build the mesh's search structure now, not inside the first reply to a command
+        self.obj.closest_points(self._center[None])
 
     def penetration(self, angles_rad, matrices=range(6)):
         """Penetration depth (m, >= 0) of every texel of the given pads: list of (cells_y, cells_x)."""
