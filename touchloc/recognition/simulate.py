@@ -299,6 +299,19 @@ class TactileScanner:
         return T
 
     # -- internals -------------------------------------------------------------------
+    def _hull_edges(self, obj):
+        """Vertices (V, 3) and edges (E, 2) of the convex hull, in the object frame."""
+        key = ("edges", id(obj))
+        h = self._hulls.get(key)
+        if h is None or h[0] is not obj:
+            try:
+                hull = obj.mesh.convex_hull
+                h = (obj, np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.edges_unique, dtype=int))
+            except Exception:  # degenerate hull: every mesh edge
+                h = (obj, np.asarray(obj.mesh.vertices, dtype=np.float64), np.asarray(obj.mesh.edges_unique, dtype=int))
+            self._hulls[key] = h
+        return h[1], h[2]
+
     def _hull(self, obj) -> np.ndarray:
         key = id(obj)
         h = self._hulls.get(key)
@@ -382,28 +395,42 @@ class TactileScanner:
         cfg = self.config
         K = len(R)
         sub = cfg.subsample_uv
-        uv = (cfg.texel_uv[:, None, :] + sub[None, :, :]).reshape(-1, 2)
         back = cfg.layer_thickness + 0.002
         # everything in the object frame: rays from just behind the pad, along -normal
         Rw, tw = object_pose[:3, :3], object_pose[:3, 3]
         Ro = np.matmul(Rw.T[None], R)  # (K, 3, 3)
         n = Ro[:, :, 2]
         start = (c - tw) @ Rw + back * n  # (K, 3)
-        origins = start[:, None, :] + np.matmul(uv[None], Ro[:, :, :2].transpose(0, 2, 1))
-        origins = origins.reshape(-1, 3)
-        dirs = np.repeat(-n, len(uv), axis=0)
-        # only rays whose segment [0, back] passes through the bounding sphere can count
-        b = obj.bounds
-        centre, radius = b.mean(axis=0), 0.5 * float(np.linalg.norm(b[1] - b[0])) + 1e-6
-        rel = centre - origins
-        t = np.clip(np.einsum("ij,ij->i", rel, dirs), 0.0, back)
-        near = np.einsum("ij,ij->i", rel - t[:, None] * dirs, rel - t[:, None] * dirs) <= radius * radius
-        dist = np.full(len(origins), np.inf)
-        if np.any(near):
-            dist[near] = obj.ray_cast(origins[near], dirs[near])[0]
-        depth = np.clip(back - dist, 0.0, cfg.layer_thickness)  # inf (miss) -> 0
-        # a texel feels the deepest indentation within its area
-        depth = depth.reshape(K, cfg.n_texels ** 2, len(sub)).max(axis=2)
+        P = start[:, None, :] + np.matmul(cfg.texel_uv[None], Ro[:, :, :2].transpose(0, 2, 1))  # (K, T, 3)
+        # Only the cap of the convex hull in front of the pad surface can indent the pad.
+        # Its vertices are the hull vertices in front and the crossings of hull edges with
+        # the pad plane; their bounding box in pad coordinates bounds the texels to test.
+        hv, he = self._hull_edges(obj)
+        level = np.einsum("ki,ki->k", start - back * n, n)  # pad surface along n
+        h = n @ hv.T - level[:, None]  # (K, V) height of each hull vertex above the pad
+        ha, hb = h[:, he[:, 0]], h[:, he[:, 1]]
+        cross = (ha > 0) != (hb > 0)
+        f = np.where(cross, ha / np.where(cross, ha - hb, 1.0), 0.0)
+        pts_e = hv[he[:, 0]][None] + f[:, :, None] * (hv[he[:, 1]] - hv[he[:, 0]])[None]  # (K, E, 3)
+        uv_lo = np.full((K, 2), np.inf)
+        uv_hi = np.full((K, 2), -np.inf)
+        for pts, mask in ((np.broadcast_to(hv[None], (K,) + hv.shape), h > 0), (pts_e, cross)):
+            uv = np.einsum("kpi,kij->kpj", pts - start[:, None, :], Ro[:, :, :2])
+            uv_lo = np.minimum(uv_lo, np.where(mask[:, :, None], uv, np.inf).min(axis=1))
+            uv_hi = np.maximum(uv_hi, np.where(mask[:, :, None], uv, -np.inf).max(axis=1))
+        half = 0.5 * cfg.pitch + 1e-6
+        tuv = cfg.texel_uv
+        near = ((tuv[None, :, 0] >= uv_lo[:, None, 0] - half) & (tuv[None, :, 0] <= uv_hi[:, None, 0] + half)
+                & (tuv[None, :, 1] >= uv_lo[:, None, 1] - half) & (tuv[None, :, 1] <= uv_hi[:, None, 1] + half))
+        kk, tt = np.nonzero(near)
+        depth = np.zeros((K, cfg.n_texels ** 2))
+        if len(kk):
+            origins = P[kk, tt][:, None, :] + np.matmul(sub[None], Ro[kk][:, :, :2].transpose(0, 2, 1))
+            dirs = np.broadcast_to(-n[kk][:, None, :], origins.shape)
+            dist = obj.ray_cast(origins.reshape(-1, 3), dirs.reshape(-1, 3))[0]
+            d = np.clip(back - dist, 0.0, cfg.layer_thickness)  # inf (miss) -> 0
+            # a texel feels the deepest indentation within its area
+            depth[kk, tt] = d.reshape(len(kk), len(sub)).max(axis=1)
         return depth.reshape(K, cfg.n_texels, cfg.n_texels)
 
     def _readings(self, depth, gain, rng):
