@@ -50,7 +50,7 @@ def _frames(k, rng):
         for _ in range(3):  # a few contact blobs
             i = int(rng.integers(0, N - 12))
             tex[i:i + 12] = rng.integers(200, 4096, 12)
-        tex += rng.integers(0, 3, N) * (rng.random(N) < 0.1)  # sensor noise
+        tex = np.minimum(tex + rng.integers(0, 3, N) * (rng.random(N) < 0.1), 4095)  # sensor noise
         out.append(tex)
     return out
 
