@@ -106,3 +106,25 @@ def test_orientation_error_is_wrapped_to_the_symmetry():
     np.testing.assert_allclose(np.degrees(e), [0.0, 1.0, 29.0], atol=1e-9)
     e0 = orientation_error([3.5], [0.0], 0)
     assert e0[0] == pytest.approx(3.5 - 2 * np.pi)
+
+
+def test_active_block_comparison_field_reproduces_exact_fft_field():
+    ds = generate_rotation_dataset(8, revolutions=1.5, rng=5)
+    fast, exact = OrientationTracker(), OrientationTracker()
+    exact.comparison.method = "fft"
+    for a, odo in ds.samples():
+        fast.step(a, odo)
+        exact.step(a, odo)
+        assert abs(fast.correction - exact.correction) < 1e-3 * DEG
+    assert abs(exact.correction) > 1 * DEG          # the comparison did correct something
+    np.testing.assert_allclose(fast.comparison.u, exact.comparison.u, atol=1e-3)
+    np.testing.assert_allclose(fast.memory, exact.memory, atol=1e-4)
+
+
+def test_run_matches_step_by_step():
+    ds = generate_rotation_dataset(6, revolutions=0.5, rng=9)
+    a, b = OrientationTracker(), OrientationTracker()
+    est, mem = a.run(ds, record=True)
+    for t, (ang, odo) in enumerate(ds.samples()):
+        assert b.step(ang, odo) == pytest.approx(est[t], abs=1e-12)
+    np.testing.assert_allclose(mem[-1], b.memory)

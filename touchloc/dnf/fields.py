@@ -322,12 +322,21 @@ class Field2D:
         self._buf = np.empty(self.shape, dtype=self.dtype)
         self._out = None
         self._block = None
+        # after a step driven by two ridges, u = a[:, None] + b[None, :] plus a patch on
+        # the window (W0, W1); kept in this form until someone reads u
+        self._lazy = None
 
     # -- state -------------------------------------------------------------------------
     @property
     def u(self) -> np.ndarray:
         """Activation, shape float. Assign a new array (``field.u = a``) rather than
         writing into it in place, so that cached outputs are recomputed."""
+        if self._lazy is not None:
+            a, b, W0, W1, P = self._lazy
+            np.add(a[:, None], b[None, :], out=self._u)
+            if W0.size:
+                self._u[np.ix_(W0, W1)] += P
+            self._lazy = None
         return self._u
 
     @u.setter
@@ -336,17 +345,17 @@ class Field2D:
         if value.shape != self.shape:
             raise ValidationError(f"u must have shape {self.shape}, got {value.shape}")
         self._u = value.copy()
-        self._out = self._block = None
+        self._out = self._block = self._lazy = None
 
     def reset(self) -> None:
         """Set the activation back to the resting level."""
         self._u.fill(self._h)
-        self._out = self._block = None
+        self._out = self._block = self._lazy = None
 
     def output(self) -> np.ndarray:
         """Field output ``f(u)``, shape float in [0, 1] (computed on demand; read-only)."""
         if self._out is None:
-            self._out = sigmoid(self._u, self.params.beta)
+            self._out = sigmoid(self.u, self.params.beta)
             self._out.flags.writeable = False
         return self._out
 
@@ -363,7 +372,7 @@ class Field2D:
             ``f(u)`` on the block; every site outside it has output below ``eps``.
         """
         if self._block is None:
-            u = self._u
+            u = self.u
             rows = np.flatnonzero(u.max(axis=1) > self._u_eps)
             if rows.size:
                 cols = np.flatnonzero(u[rows].max(axis=0) > self._u_eps)
@@ -422,11 +431,16 @@ class Field2D:
         Use :meth:`output` or :meth:`active_block` for the output after the step.
         """
         terms = list(stimulus) if isinstance(stimulus, tuple) else [stimulus]
+        ridges = (len(terms) == 2 and np.ndim(terms[0]) == 2 and np.ndim(terms[1]) == 2
+                  and np.shape(terms[0]) == (self.shape[0], 1) and np.shape(terms[1]) == (1, self.shape[1]))
+        if ridges and self._rate == 1.0 and self._use_active():
+            self._step_ridges(np.asarray(terms[0], self.dtype)[:, 0], np.asarray(terms[1], self.dtype)[0])
+            return
+        u = self.u
         new = self._buf
         if self._use_active():
             const = self._h - self.dtype.type(self._c_glob * float(self.active_block()[2].sum(dtype=np.float64)))
-            if (len(terms) == 2 and np.ndim(terms[0]) == 2 and np.ndim(terms[1]) == 2
-                    and np.shape(terms[0])[1] == 1 and np.shape(terms[1])[0] == 1):
+            if ridges:
                 np.add(terms[0] + const, terms[1], out=new)      # one pass for two ridges
             else:
                 new.fill(const)
@@ -439,12 +453,77 @@ class Field2D:
             for term in terms:
                 new += term
         if self._rate == 1.0:            # u <- h + S + lateral
-            self._buf, self._u = self._u, new
+            self._buf, self._u = u, new
         else:                            # u <- u + rate (-u + h + S + lateral)
-            new -= self._u
+            new -= u
             new *= self.dtype.type(self._rate)
-            self._u += new
+            u += new
         self._out = self._block = None
+
+    def _step_ridges(self, a: np.ndarray, b: np.ndarray) -> None:
+        """Euler step with ``dt = tau`` and input ``a[:, None] + b[None, :]`` (active method).
+
+        The new activation is ``h + a(x) + b(y) + lateral``, where the lateral input of the
+        active block is non-zero only on a window of rows ``W0`` and columns ``W1``:
+        ``u = a'[:, None] + b[None, :] + P`` on the window. Row and column maxima, and so
+        the new active block, follow from the 1-D arrays and the window alone; the full
+        field is formed only when ``u`` or ``output()`` is read.
+        """
+        rows0, cols0, block0 = self.active_block()
+        a = a + (self._h - self.dtype.type(self._c_glob * float(block0.sum(dtype=np.float64))))
+        n0, n1 = self.shape
+        if rows0.size:
+            wins = [(_dilate(rows0, r0, n0), _dilate(cols0, r1, n1), c, m0, m1) for c, m0, m1, r0, r1 in self._circ]
+            W0 = np.unique(np.concatenate([w[0] for w in wins])) if len(wins) > 1 else wins[0][0]
+            W1 = np.unique(np.concatenate([w[1] for w in wins])) if len(wins) > 1 else wins[0][1]
+            P = np.zeros((W0.size, W1.size), dtype=self.dtype)
+            for w0, w1, c, m0, m1 in wins:
+                part = (m0[np.ix_(w0, rows0)] @ block0) @ (m1[np.ix_(cols0, w1)] * c)
+                if len(wins) == 1:
+                    P += part
+                else:
+                    P[np.ix_(np.searchsorted(W0, w0), np.searchsorted(W1, w1))] += part
+        else:
+            W0 = W1 = np.zeros(0, dtype=np.int64)
+            P = np.zeros((0, 0), dtype=self.dtype)
+        ue = self._u_eps
+        # row maxima
+        rowmax = a + b.max()
+        if W0.size:
+            out1 = np.ones(n1, dtype=bool)
+            out1[W1] = False
+            b_out = b[out1].max() if out1.any() else -np.inf
+            inner = (a[W0][:, None] + b[W1][None, :] + P).max(axis=1)
+            rowmax[W0] = np.maximum(a[W0] + b_out, inner)
+        R = np.flatnonzero(rowmax > ue)
+        if R.size:
+            in0 = np.zeros(n0, dtype=bool)
+            in0[W0] = True
+            r_in = in0[R]                                  # rows of R inside the window
+            colmax = b + a[R].max()
+            if W0.size:
+                r_out = R[~r_in]
+                cm = b[W1] + (a[r_out].max() if r_out.size else -np.inf)
+                if r_in.any():
+                    pos = np.searchsorted(W0, R[r_in])
+                    cm = np.maximum(cm, (a[R[r_in]][:, None] + b[W1][None, :] + P[pos]).max(axis=0))
+                colmax[W1] = cm
+            C = np.flatnonzero(colmax > ue)
+            U = a[R][:, None] + b[C][None, :]
+            if W0.size and r_in.any():
+                in1 = np.zeros(n1, dtype=bool)
+                in1[W1] = True
+                c_in = in1[C]
+                if c_in.any():
+                    U[np.ix_(np.flatnonzero(r_in), np.flatnonzero(c_in))] += \
+                        P[np.ix_(np.searchsorted(W0, R[r_in]), np.searchsorted(W1, C[c_in]))]
+            block = sigmoid(U, self.params.beta)
+        else:
+            C = R
+            block = np.zeros((0, 0), dtype=self.dtype)
+        self._lazy = (a, b, W0, W1, P)
+        self._block = (R, C, block)
+        self._out = None
 
 
 def _reach(g: np.ndarray) -> int:
