@@ -200,3 +200,21 @@ def test_can_frames_are_at_most_8_bytes_and_on_id_42():
     assert {m.arbitration_id for m in frames} == {42, 43}
     sent = b"".join(bytes(m.data) for m in frames if m.arbitration_id == 42)
     assert b"p=1.000,2.000,3.000,4.000,5.000,6.000,7.000\r\n" in sent
+
+
+def test_can_reader_ignores_foreign_frames():
+    ch = f"sdh-foreign-{next(_ids)}"
+    emu = SDH2Emulator(SimHand(time_scale=20.0))
+    bus = can.Bus(interface="virtual", channel=ch)
+    other = can.Bus(interface="virtual", channel=ch)
+    with CANServer(emu, channel=ch):
+        hand = SDH2.over_can(bus, timeout=0.5)
+        hand.move(np.radians([5, 0, 0, 0, 0, 0, 0]), wait=True)
+        # frames the hand's reader must skip: extended id 43, remote frame, error frame, another id
+        other.send(can.Message(arbitration_id=43, data=b"POS=9\r\n", is_extended_id=True))
+        other.send(can.Message(arbitration_id=43, is_remote_frame=True, dlc=8, is_extended_id=False))
+        other.send(can.Message(arbitration_id=43, is_error_frame=True, is_extended_id=False))
+        other.send(can.Message(arbitration_id=44, data=b"POS=1\r\n", is_extended_id=False))
+        np.testing.assert_allclose(np.degrees(hand.actual_angles()), [5, 0, 0, 0, 0, 0, 0], atol=1e-3)
+    other.shutdown()
+    bus.shutdown()

@@ -4,16 +4,23 @@ Drivers take an already-open transport (a pyserial port from ``serial.serial_for
 a python-can bus); see docs/hardware.md for real port names and the emulators.
 """
 
-from .dsacon import (DSACON32m, DSAFirmwareError, MatrixInfo, PacketParser, TactileFrame, crc16,
-                     decode_frame, decode_rle, encode_packet, encode_rle)
+from .dsacon import (ControllerInfo, DSACON32m, DSAFirmwareError, MatrixInfo, PacketParser, SensitivityInfo,
+                     SensorInfo, TactileFrame, crc16, decode_frame, decode_rle, encode_packet, encode_rle)
 from .executor import GuardedTouchExecutor, TouchAborted, TouchPlan
 from .kinematics import DEFAULT_PADS, FINGER_AXES, PadLayout, SDH2Kinematics
-from .sdh2 import SDH2, AxisState, GripPreset, SDHFirmwareError
+from .sdh2 import SDH2, AxisState, GripPreset, Identification, SDHFirmwareError
 from .session import SessionLog, SessionRecord, read_session, replay, session_contacts
 from .tactile import Blob, blobs_to_contacts, find_blobs, frame_to_contacts
 
-__all__ = ["DSACON32m", "DSAFirmwareError", "MatrixInfo", "PacketParser", "TactileFrame", "crc16",
-           "decode_frame", "decode_rle", "encode_packet", "encode_rle", "SDH2", "SDHFirmwareError", "AxisState", "GripPreset", "SDH2Kinematics", "PadLayout",
-           "DEFAULT_PADS", "FINGER_AXES", "GuardedTouchExecutor", "TouchAborted", "TouchPlan",
-           "SessionLog", "SessionRecord", "read_session", "replay", "session_contacts", "Blob",
-           "blobs_to_contacts", "find_blobs", "frame_to_contacts"]
+__all__ = [
+    # drivers
+    "SDH2", "SDHFirmwareError", "AxisState", "GripPreset", "Identification",
+    "DSACON32m", "DSAFirmwareError", "TactileFrame", "ControllerInfo", "SensorInfo", "MatrixInfo",
+    "SensitivityInfo", "PacketParser", "crc16", "encode_packet", "decode_frame", "decode_rle", "encode_rle",
+    # geometry and contacts
+    "SDH2Kinematics", "PadLayout", "DEFAULT_PADS", "FINGER_AXES",
+    "Blob", "find_blobs", "frame_to_contacts", "blobs_to_contacts",
+    # touches and their log
+    "GuardedTouchExecutor", "TouchPlan", "TouchAborted",
+    "SessionLog", "SessionRecord", "read_session", "session_contacts", "replay",
+]

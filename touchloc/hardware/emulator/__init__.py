@@ -13,5 +13,7 @@ from .sdh2 import SDH2Emulator
 from .rig import REST_DEG, EmulatedRig
 from .servers import CANServer, PtyServer, TCPServer
 
-__all__ = ["EmulatedRig", "REST_DEG", "SDH2Emulator", "DSACON32mEmulator", "DEFAULT_SHAPES", "SimHand", "SimWorld", "TCPServer", "PtyServer", "CANServer",
-           "FaultPlan", "Fault", "FAULT_KINDS"]
+__all__ = [
+    "SDH2Emulator", "DSACON32mEmulator", "DEFAULT_SHAPES", "SimHand", "SimWorld", "EmulatedRig", "REST_DEG",
+    "TCPServer", "PtyServer", "CANServer", "FaultPlan", "Fault", "FAULT_KINDS",
+]
