@@ -73,12 +73,12 @@ def _fft_tracker(tr):
 
 def _accuracy(quick: bool, seed: int) -> str:
     from touchloc.dnf import standard_datasets
-    from touchloc.dnf.compare import compare, summary_table
+    from touchloc.dnf.compare import compare, default_estimators, summary_table
 
     n = 2 if quick else 5
     sets = standard_datasets(n_per_object=n, seed=seed)
     t0 = time.perf_counter()
-    res = compare(sets, progress_bar=False)
+    res = compare(sets, default_estimators(rng=0), progress_bar=False)
     dt = time.perf_counter() - t0
     return (f"{n} simulated data sets per object (`standard_datasets(seed={seed})`, about 4 turns and "
             f"410 samples each; {dt:.0f} s for all runs). \"Right count\" is the fraction of second-half "

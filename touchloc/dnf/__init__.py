@@ -14,10 +14,13 @@ from .estimators import HistogramEstimator, count_surfaces, normalize_max, surfa
 from .fields import (Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, diagonal_sum, expand,
                      lateral_kernel, sigmoid)
 from .tracker import OrientationTracker, TrackerParams, population_code
+from .particle import ParticleOrientationEstimator
+from .compare import EstimatorRun, compare, default_estimators, orientation_error, run_estimator, summary_table
 
 __all__ = [
     "OrientationTracker", "TrackerParams", "count_surfaces", "surface_peaks", "HistogramEstimator",
-    "normalize_max", "population_code",
+    "normalize_max", "population_code", "ParticleOrientationEstimator",
+    "compare", "run_estimator", "default_estimators", "orientation_error", "summary_table", "EstimatorRun",
     "Field1D", "Field2D", "FieldParams", "MemoryTrace", "sigmoid", "lateral_kernel", "circular_convolve",
     "expand", "diagonal_sum",
     "RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording", "save_recording",

@@ -88,7 +88,7 @@ def run_figure(args) -> int:
         ds = generate_rotation_dataset(OBJECTS[args.object], name=f"{args.object} #{args.dataset}",
                                        rng=np.random.default_rng([args.seed, names.index(args.object),
                                                                   args.dataset - 1]))
-    est = default_estimators()
+    est = default_estimators(rng=args.seed)
     mems, lines = {}, []
     for name, title in (("histogram", "Histogram (each sample normalised)"),
                         ("memory, uncorrected", "Uncorrected memory trace"),

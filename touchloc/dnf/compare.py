@@ -30,8 +30,11 @@ ESTIMATOR_COLORS = {"histogram": "tab:blue", "memory, uncorrected": "tab:green",
                     "particle filter": "tab:purple"}
 
 
-def default_estimators(*, particles: int = 400, rng=0) -> dict:
+def default_estimators(*, particles: int = 400, rng=None) -> dict:
     """Factories of the four estimators, keyed by display name.
+
+    ``rng`` seeds the particle filter (an int gives every run the same seed, so results
+    are reproducible).
 
     Returns
     -------
@@ -140,7 +143,7 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
     datasets : dict
         ``{object name: [RotationDataset, ...]}`` (e.g. :func:`standard_datasets`).
     estimators : dict, optional
-        ``{name: factory}``; default :func:`default_estimators`.
+        ``{name: factory}``; default ``default_estimators(rng=0)``.
     record : bool
         Keep every memory over time (for :func:`plot_memories`).
 
@@ -151,7 +154,7 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
     """
     if not datasets:
         raise ValidationError("datasets is empty; expected {object name: [RotationDataset, ...]}")
-    estimators = estimators or default_estimators()
+    estimators = estimators or default_estimators(rng=0)
     jobs = [(obj, name, make, ds) for obj, dss in datasets.items() for ds in dss for name, make in estimators.items()]
     out = {obj: {name: [] for name in estimators} for obj in datasets}
     for obj, name, make, ds in progress(jobs, desc="estimators x data sets", enabled=progress_bar):
