@@ -87,6 +87,26 @@ def estimate(obj, log_path, *, seed: int, half_extent: float):
     return belief.map_pose(), "Scaling Series"
 
 
+def show(res) -> None:
+    what = f"{len(res.contact)} contact(s)" if res.hit else "free"
+    print(f"  {res.touch.name:28s} travel {res.travel * 1e3:5.1f} mm  {what}")
+
+
+def run_planned(ex, obj, true, args) -> None:
+    """Active localisation: the planner picks each touch from the fixed set, given the belief."""
+    from touchloc.belief import PoseRegion
+    from touchloc.hardware import HandWorld
+    from touchloc.planners import OneStepPlanner
+    from touchloc.planners.loop import active_localization
+
+    model = ProximityModel(obj, sigma_pos=0.003, sigma_nor=0.5)
+    region = PoseRegion.planar(center=(0.0, 0.0), half_extent=0.03, z=0.0)
+    result = active_localization(HandWorld(ex, true), model, region, OneStepPlanner(model),
+                                 touch_sequence(ex), max_touches=args.max_touches, min_touches=6, rng=args.seed,
+                                 callback=lambda step: [show(r) for r in step.results])
+    print(f"planner stopped after {result.touches} touches (confident: {result.confident})")
+
+
 def yaw_error(Ta, Tb, symmetry: int) -> float:
     """Yaw difference (deg) modulo the object's symmetry order about z."""
     d = math.atan2(Ta[1, 0], Ta[0, 0]) - math.atan2(Tb[1, 0], Tb[0, 0])
@@ -101,6 +121,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hand-height", type=float, default=0.18, help="hand base above the table origin (m)")
     ap.add_argument("--time-scale", type=float, default=4.0, help="emulated seconds per wall second")
     ap.add_argument("--log", default=None, help="session log path (default: a temporary file)")
+    ap.add_argument("--planned", action="store_true",
+                    help="choose each touch with the one-step planner (expected entropy) instead of the fixed order")
+    ap.add_argument("--max-touches", type=int, default=10, help="with --planned: most touches")
     ap.add_argument("--can-interface", help="real hand on CAN: python-can interface (socketcan, pcan, ixxat...)")
     ap.add_argument("--can-channel", help="real hand on CAN: channel (can0, PCAN_USBBUS1, 0...)")
     ap.add_argument("--can-bitrate", type=int, default=1_000_000)
@@ -139,10 +162,11 @@ def main(argv=None) -> int:
         print(f"hand firmware {hand.firmware_version()}, tactile matrices {tactile.shapes}")
         ex = GuardedTouchExecutor(hand, tactile, hand_pose=T_hand, log=log_path)
         t0 = time.perf_counter()
-        for touch in touch_sequence(ex):
-            res = ex.execute(touch)
-            what = f"{len(res.contact)} contact(s)" if res.hit else "free"
-            print(f"  {touch.name:28s} travel {res.travel * 1e3:5.1f} mm  {what}")
+        if args.planned:
+            run_planned(ex, obj, true, args)
+        else:
+            for touch in touch_sequence(ex):
+                show(ex.execute(touch))
         print(f"{ex.log.count} touches in {time.perf_counter() - t0:.1f} s, logged to {log_path}")
     finally:
         if rig is not None:

@@ -6,7 +6,7 @@ a python-can bus); see docs/hardware.md for real port names and the emulators.
 
 from .dsacon import (ControllerInfo, DSACON32m, DSAFirmwareError, MatrixInfo, PacketParser, SensitivityInfo,
                      SensorInfo, TactileFrame, crc16, decode_frame, decode_rle, encode_packet, encode_rle)
-from .executor import GuardedTouchExecutor, TouchAborted, TouchPlan
+from .executor import GuardedTouchExecutor, HandWorld, TouchAborted, TouchPlan
 from .kinematics import DEFAULT_PADS, FINGER_AXES, PadLayout, SDH2Kinematics
 from .sdh2 import SDH2, AxisState, GripPreset, Identification, SDHFirmwareError
 from .session import SessionLog, SessionRecord, read_session, replay, session_contacts
@@ -21,6 +21,6 @@ __all__ = [
     "SDH2Kinematics", "PadLayout", "DEFAULT_PADS", "FINGER_AXES",
     "Blob", "find_blobs", "frame_to_contacts", "blobs_to_contacts",
     # touches and their log
-    "GuardedTouchExecutor", "TouchPlan", "TouchAborted",
+    "GuardedTouchExecutor", "TouchPlan", "TouchAborted", "HandWorld",
     "SessionLog", "SessionRecord", "read_session", "session_contacts", "replay",
 ]

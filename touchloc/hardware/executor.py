@@ -21,12 +21,12 @@ import numpy as np
 
 from ..errors import HardwareError, ValidationError
 from ..models import Contacts
-from ..planners import GuardedTouch, TouchResult
+from ..planners import GuardedTouch, HandTouch, TouchResult
 from .kinematics import FINGER_AXES, SDH2Kinematics
 from .session import SessionLog
 from .tactile import blobs_to_contacts, find_blobs
 
-__all__ = ["GuardedTouchExecutor", "TouchPlan", "TouchAborted"]
+__all__ = ["GuardedTouchExecutor", "TouchPlan", "TouchAborted", "HandWorld"]
 
 
 class TouchAborted(HardwareError):
@@ -209,6 +209,14 @@ class GuardedTouchExecutor:
                                     "pressure": b.pressure, "n_texels": b.n_texels} for b in blobs])
         return result
 
+    def execute_action(self, action) -> list:
+        """Run a GuardedTouch or each touch of a HandTouch in turn; one TouchResult per touch."""
+        if isinstance(action, GuardedTouch):
+            return [self.execute(action)]
+        if isinstance(action, HandTouch):
+            return [self.execute(t) for t in action.touches]
+        raise ValidationError(f"action must be a GuardedTouch or HandTouch, got {type(action).__name__}")
+
     def _move(self, angles) -> np.ndarray:
         duration = self.hand.move(angles)
         return self.hand.wait_until_idle(max(self.move_timeout, 3.0 * duration + 1.0))
@@ -254,3 +262,25 @@ class GuardedTouchExecutor:
             self._move(plan.angles[0])
             self._move(rest)
         return result, angles, blobs
+
+
+class HandWorld:
+    """The hand as a "world" for the planners' active-localisation loop.
+
+    ``touchloc.planners.active_localization(HandWorld(executor), model, region, planner,
+    candidates)`` plans each touch, runs it on the hand and updates the belief.
+
+    Parameters
+    ----------
+    executor : GuardedTouchExecutor
+    true_pose : (4, 4) float, optional
+        Known only with an emulated world; lets the loop report errors.
+    """
+
+    def __init__(self, executor: GuardedTouchExecutor, true_pose=None):
+        self.executor = executor
+        self.true_pose = None if true_pose is None else np.asarray(true_pose, dtype=np.float64)
+
+    def execute(self, action) -> list:
+        """One TouchResult per guarded touch of ``action``."""
+        return self.executor.execute_action(action)
