@@ -208,3 +208,14 @@ def test_unknown_command_error_name(tactile):
     with pytest.raises(DSAFirmwareError, match="CMD_UNKNOWN"):
         from touchloc.hardware.dsacon import _check_error
         _check_error(0x42, dev._wait(0x42))
+
+
+def test_powerup_esc_sequence_is_skipped():
+    emu = DSACON32mEmulator(powerup_esc=True)
+    with TCPServer(emu) as srv:
+        port = serial.serial_for_url(srv.url, timeout=0.05)
+        dev = DSACON32m(port, timeout=0.5, open_timeout=0.5)
+        # the three ESC "[5n" (12 bytes) arrived first and were hunted over
+        assert dev.parser.skipped >= 12
+        assert dev.sensor.nb_matrices == 6
+        port.close()

@@ -253,3 +253,27 @@ def test_replay_into_a_filter(tmp_path):
     assert replay(p, f) == 2 and f.seen == [0.08, 0.07]
     with pytest.raises(ValidationError):
         read_session(tmp_path / "missing.jsonl")
+
+
+def test_flange_frame_straight_finger_length():
+    # straight fingers: 246 mm from the mounting flange to the tips (sdh2_kinematics.md)
+    T = SDH2Kinematics.flange_from_hand()
+    tips = KIN.fingertips(np.zeros(7)) @ T[:3, :3].T + T[:3, 3]
+    np.testing.assert_allclose(tips[:, 2], 0.246, atol=1e-9)
+    # Rz(-90 deg): the hand's +x becomes the flange's -y
+    np.testing.assert_allclose(T[:3, :3] @ [1, 0, 0], [0, -1, 0], atol=1e-12)
+
+
+def test_hand_touch_through_the_planners_world_interface(rig):
+    from touchloc.hardware import HandWorld
+    from touchloc.planners import HandTouch
+
+    r, ex = rig
+    if r.hand_transport != "can":
+        pytest.skip("one transport is enough here")
+    action = HandTouch((ex.finger_touch(0, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)),
+                        ex.finger_touch(2, math.pi / 2, (-0.03, 0.112), (0.04, 0.112))))
+    results = HandWorld(ex).execute(action)
+    assert len(results) == 2 and all(x.hit for x in results)
+    # fingers 0 and 2 at a0 = 90 deg touch opposite faces (+x and -x)
+    assert results[0].contact.normals[0, 0] > 0.8 and results[1].contact.normals[0, 0] < -0.8

@@ -131,6 +131,18 @@ class SDH2Kinematics:
         self.bases = _BASES.copy()
         self._cache: dict = {}
 
+    @staticmethod
+    def flange_from_hand() -> np.ndarray:
+        """(4, 4) T_flange_hand: hand frame H to the robot description's palm (mounting flange) frame.
+
+        ``p_flange = Rz(-90 deg) p_H + (0, 0, 74 mm)`` (sdh2_kinematics.md): on an arm, the
+        executor's ``hand_pose`` is ``T_world_flange @ SDH2Kinematics.flange_from_hand()``.
+        """
+        T = np.eye(4)
+        T[:3, :3] = [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+        T[2, 3] = 0.074
+        return T
+
     def with_matrix_info(self, infos) -> "SDH2Kinematics":
         """A copy whose pads take cells and texel sizes from the controller's matrix info."""
         pads = []

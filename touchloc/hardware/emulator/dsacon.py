@@ -40,7 +40,8 @@ class DSACON32mEmulator:
     texel_size : float
         Texel pitch reported by 0x0B (mm); 3.4 by default (assumed, see dsacon32m.md).
     powerup_esc : bool
-        Send ESC "[5n" three times before anything else, as after power-up.
+        Send ESC "[5n" three times before the first reply, as when the host starts talking
+        while the controller is still booting.
 
     Attributes
     ----------
@@ -100,11 +101,8 @@ class DSACON32mEmulator:
         return encode_packet(CMD_FRAME, struct.pack("<IB", ts, 1 if self.rle else 0) + data)
 
     def poll(self) -> bytes:
-        """Bytes pushed without a request: the power-up ESC sequence, streamed frames."""
+        """Bytes pushed without a request: streamed frames."""
         out = b""
-        if self._esc_pending:
-            self._esc_pending = False
-            out += POWERUP_ESC * 3
         if self.streaming and self.framerate > 0 and not self.faults.silent:
             now = time.monotonic()
             if now >= self._next_push:
@@ -126,6 +124,9 @@ class DSACON32mEmulator:
                     break
                 cmd, payload = pkt
                 self.received.append((cmd, payload))
+                if self._esc_pending:  # the host spoke while the controller was still booting
+                    self._esc_pending = False
+                    out += POWERUP_ESC * 3
                 if self.faults.silent:
                     continue
                 fault = self.faults.take(cmd)
