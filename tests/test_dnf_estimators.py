@@ -76,5 +76,14 @@ def test_particle_filter_state_and_validation():
         ParticleOrientationEstimator(0)
     with pytest.raises(ValidationError, match="forget"):
         ParticleOrientationEstimator(forget=1.0)
+    with pytest.raises(ValidationError, match="scale_range"):
+        ParticleOrientationEstimator(scale_range=(0.2, 0.1))
+
+
+def test_particle_filter_scale_error_moves_offsets_with_the_odometry():
+    pf = ParticleOrientationEstimator(20, drift_std=1e-9, scale_range=(0.1, 0.1), rng=0)
+    pf.step([0.1], 0.0)
+    pf.step([0.1], 1.0)
+    np.testing.assert_allclose(pf.offsets, 0.1, atol=1e-6)    # k * change of odometry
     with pytest.raises(ValidationError, match="at least one angle"):
         pf.step([], 0.0)
