@@ -253,8 +253,11 @@ class Field2D:
         ``eps * (c_exc * G_exc**2 + c_inh * G_inh**2 + c_glob * n0 * n1)`` with
         ``G = sum_d g(d)`` (about ``sqrt(2 pi) sigma`` in sites): below 1e-3 for the
         tracker's comparison field with ``eps = 1e-6``. A step then costs a few passes
-        over the field instead of a 2-D FFT. When more than ``max_active`` rows or
-        columns are active it falls back to the FFT.
+        over the field instead of a 2-D FFT; with ``dt == tau`` and an input of two
+        expanded 1-D fields it needs no pass at all (the activation is kept as the two
+        1-D inputs plus a patch and formed only when :attr:`u` or :meth:`output` is
+        read). When more than ``max_active`` rows or columns are active it falls back to
+        the FFT.
 
     Parameters
     ----------
