@@ -58,6 +58,31 @@ def _world(args):
     return SimWorld(load_object(args.mesh), T, H)
 
 
+def _open_bus(interface, channel, bitrate=None):
+    import can
+
+    from ..errors import DeviceDisconnected
+
+    kw = {} if bitrate is None else {"bitrate": bitrate}
+    try:
+        return can.Bus(interface=interface, channel=channel, **kw)
+    except (can.CanError, OSError, ImportError, ValueError) as exc:
+        hint = (" (a virtual SocketCAN bus: sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0)"
+                if interface == "socketcan" else "")
+        raise DeviceDisconnected(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}{hint}") from exc
+
+
+def _open_serial(url):
+    import serial
+
+    from ..errors import DeviceDisconnected
+
+    try:
+        return serial.serial_for_url(url, baudrate=115200, timeout=0.05)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise DeviceDisconnected(f"cannot open {url!r}: {exc}") from exc
+
+
 def run_emulate(args) -> int:
     from .emulator import REST_DEG, CANServer, DSACON32mEmulator, PtyServer, SDH2Emulator, SimHand, TCPServer
 
@@ -68,7 +93,7 @@ def run_emulate(args) -> int:
     elif args.hand == "pty":
         servers.append(("SDH-2", PtyServer(SDH2Emulator(sim))))
     elif args.hand == "can":
-        servers.append(("SDH-2", CANServer(SDH2Emulator(sim), interface=args.can_interface, channel=args.can_channel)))
+        servers.append(("SDH-2", CANServer(SDH2Emulator(sim), bus=_open_bus(args.can_interface, args.can_channel))))
     if args.tactile == "tcp":
         servers.append(("DSACON32m", TCPServer(DSACON32mEmulator(sim), port=args.tactile_port)))
     elif args.tactile == "pty":
@@ -95,8 +120,6 @@ def run_emulate(args) -> int:
 
 
 def run_hand_info(args) -> int:
-    import serial
-
     from ..errors import ValidationError
     from .dsacon import DSACON32m
     from .sdh2 import SDH2
@@ -105,12 +128,10 @@ def run_hand_info(args) -> int:
         raise ValidationError("give --port URL or --can-interface/--can-channel for the hand, and/or --tactile-port")
     if args.port or args.can_interface:
         if args.can_interface:
-            import can
-
-            bus = can.Bus(interface=args.can_interface, channel=args.can_channel, bitrate=args.can_bitrate)
+            bus = _open_bus(args.can_interface, args.can_channel, args.can_bitrate)
             hand = SDH2.over_can(bus, timeout=args.timeout)
         else:
-            hand = SDH2(serial.serial_for_url(args.port, baudrate=115200, timeout=0.05), timeout=args.timeout)
+            hand = SDH2(_open_serial(args.port), timeout=args.timeout)
         ident = hand.identification()
         lo, hi = hand.angle_limits
         print(f"SDH-2 firmware {ident.firmware} ({ident.firmware_date}), id {ident.hand_id}, "
@@ -124,7 +145,7 @@ def run_hand_info(args) -> int:
         if args.can_interface:
             bus.shutdown()
     if args.tactile_port:
-        tac = DSACON32m(serial.serial_for_url(args.tactile_port, baudrate=115200, timeout=0.05), timeout=args.timeout)
+        tac = DSACON32m(_open_serial(args.tactile_port), timeout=args.timeout)
         c = tac.controller
         print(f"DSACON32m serial {c.serial}, hw {c.hw_version}, sw 0x{c.sw_version:04x}, "
               f"{tac.sensor.nb_matrices} matrices")
