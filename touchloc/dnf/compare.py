@@ -39,8 +39,9 @@ def default_estimators(*, particles: int = 400, rng=None) -> dict:
     Returns
     -------
     dict
-        ``{name: callable() -> estimator}``; each estimator has ``_step``/``step``,
-        ``odometry``, ``orientation`` and ``memory``.
+        ``{name: callable() -> estimator}``. Any estimator with ``step(normal_angles,
+        odometry)``, ``orientation`` and ``memory`` (an activation over orientation for
+        :func:`count_surfaces`) can join the comparison.
     """
     return {
         "histogram": lambda: HistogramEstimator(360),
@@ -119,8 +120,7 @@ def run_estimator(name: str, make, dataset, *, record: bool = False) -> Estimato
     spent = 0.0
     for t, (a, odo) in enumerate(dataset.samples()):
         t0 = time.perf_counter()
-        est.odometry = odo
-        est._step(a)
+        est.step(a, odo)
         spent += time.perf_counter() - t0
         mem = est.memory
         counts[t] = count_surfaces(mem)
