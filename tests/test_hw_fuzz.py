@@ -172,9 +172,12 @@ class _NoiseDevice:
         return b""
 
     def feed(self, data):
-        if self.rng.random() < 0.5:
+        r = self.rng.random()
+        if r < 0.4:
             return self.rng.bytes(int(self.rng.integers(0, 300)))
-        return _mutate(self.rng, self.valid)
+        if r < 0.75:
+            return _mutate(self.rng, self.valid)
+        return self.valid
 
 
 def test_drivers_on_a_noisy_wire_end_in_library_errors():
@@ -187,9 +190,9 @@ def test_drivers_on_a_noisy_wire_end_in_library_errors():
     dsa_reply = encode_packet(0x14, struct.pack("<HH", 0, 5))
     with TCPServer(_NoiseDevice(1, dsa_reply)) as srv:
         port = serial.serial_for_url(srv.url, timeout=0.01)
-        dev = DSACON32m(port, connect=False, timeout=0.05)
+        dev = DSACON32m(port, connect=False, timeout=0.15)
         dev.matrix_infos = []
-        for _ in range(40):
+        for _ in range(30):
             try:
                 assert 0 <= dev.threshold(0) <= 0xFFFF
                 outcomes["ok"] += 1
@@ -198,12 +201,12 @@ def test_drivers_on_a_noisy_wire_end_in_library_errors():
         port.close()
     with TCPServer(_NoiseDevice(2, b"P=1,2,3,4,5,6,7\r\n")) as srv:
         port = serial.serial_for_url(srv.url, timeout=0.01)
-        hand = SDH2(port, connect=False, timeout=0.05)
-        for _ in range(40):
+        hand = SDH2(port, connect=False, timeout=0.15)
+        for _ in range(30):
             try:
                 assert hand.target_angles().shape == (7,)
                 outcomes["ok"] += 1
             except TouchlocError:
                 outcomes["error"] += 1
         port.close()
-    assert outcomes["ok"] > 0 and outcomes["error"] > 0
+    assert outcomes["ok"] > 0 and outcomes["error"] > 0, outcomes
