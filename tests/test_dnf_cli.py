@@ -22,7 +22,7 @@ def test_compare_dnf_prints_table_and_saves_plots(tmp_path, capsys):
     assert "| 6-gon (6 sides) | DNF, corrected | 100% |" in out
     for name in ("histogram", "memory, uncorrected", "particle filter"):
         assert f"| {name} |" in out
-    for png in ("dnf_surfaces.png", "dnf_second_half.png", "dnf_orientation_error.png"):
+    for png in ("dnf_surfaces.png", "dnf_second_half.png", "dnf_orientation_error.png", "dnf_step_time.png"):
         assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG"
 
 

@@ -51,7 +51,7 @@ def _load(args):
 
 def run_compare(args) -> int:
     from .compare import (compare, default_estimators, plot_orientation_error, plot_second_half,
-                          plot_surface_counts, summary_table)
+                          plot_step_time, plot_surface_counts, summary_table)
     from .data import standard_datasets
 
     sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed)
@@ -65,10 +65,11 @@ def run_compare(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
         plot_surface_counts(results, out / "dnf_surfaces.png")
         plot_second_half(results, out / "dnf_second_half.png")
+        plot_step_time(results, out / "dnf_step_time.png")
         if any(r.error is not None for by in results.values() for runs in by.values() for r in runs):
             plot_orientation_error(results, out / "dnf_orientation_error.png")
         print(f"\nplots in {out}/: dnf_surfaces.png (seed Fig. 6), dnf_second_half.png (Fig. 7), "
-              "dnf_orientation_error.png")
+              "dnf_orientation_error.png, dnf_step_time.png")
     return 0
 
 

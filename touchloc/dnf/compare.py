@@ -21,7 +21,7 @@ from .tracker import OrientationTracker
 
 __all__ = ["EstimatorRun", "default_estimators", "run_estimator", "compare", "summary_table",
            "orientation_error", "plot_surface_counts", "plot_second_half", "plot_orientation_error",
-           "plot_memories", "ESTIMATOR_COLORS"]
+           "plot_memories", "plot_step_time", "ESTIMATOR_COLORS"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -287,6 +287,26 @@ def plot_orientation_error(results: dict, path) -> None:
         ax.set_xlabel("sample")
         ax.set_ylabel("orientation error (deg)")
     axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_step_time(results: dict, path) -> None:
+    """Mean wall time per step of each estimator, per object (log scale)."""
+    plt = _plt()
+    objs = list(results)
+    names = list(results[objs[0]])
+    fig, ax = plt.subplots(figsize=(7, 3.4))
+    w = 0.8 / len(names)
+    for k, name in enumerate(names):
+        t = [np.mean([r.seconds_per_step for r in results[o][name]]) * 1e3 for o in objs]
+        ax.bar(np.arange(len(objs)) + (k - (len(names) - 1) / 2) * w, t, w, color=ESTIMATOR_COLORS.get(name),
+               label=name)
+    ax.set_xticks(np.arange(len(objs)), objs)
+    ax.set_yscale("log")
+    ax.set_ylabel("time per step (ms)")
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
