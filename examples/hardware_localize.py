@@ -124,6 +124,8 @@ def main(argv=None) -> int:
     ap.add_argument("--planned", action="store_true",
                     help="choose each touch with the one-step planner (expected entropy) instead of the fixed order")
     ap.add_argument("--max-touches", type=int, default=10, help="with --planned: most touches")
+    ap.add_argument("--velocity", action="store_true",
+                    help="velocity-controlled touches (con=1, tvav) instead of 2 mm position steps")
     ap.add_argument("--can-interface", help="real hand on CAN: python-can interface (socketcan, pcan, ixxat...)")
     ap.add_argument("--can-channel", help="real hand on CAN: channel (can0, PCAN_USBBUS1, 0...)")
     ap.add_argument("--can-bitrate", type=int, default=1_000_000)
@@ -160,7 +162,8 @@ def main(argv=None) -> int:
         print(f"emulated SDH-2 on CAN {rig.hand_address}, DSACON32m on {rig.tactile_address}")
     try:
         print(f"hand firmware {hand.firmware_version()}, tactile matrices {tactile.shapes}")
-        ex = GuardedTouchExecutor(hand, tactile, hand_pose=T_hand, log=log_path)
+        ex = GuardedTouchExecutor(hand, tactile, hand_pose=T_hand, log=log_path,
+                                  mode="velocity" if args.velocity else "steps")
         t0 = time.perf_counter()
         if args.planned:
             run_planned(ex, obj, true, args)

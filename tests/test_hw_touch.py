@@ -277,3 +277,20 @@ def test_hand_touch_through_the_planners_world_interface(rig):
     assert len(results) == 2 and all(x.hit for x in results)
     # fingers 0 and 2 at a0 = 90 deg touch opposite faces (+x and -x)
     assert results[0].contact.normals[0, 0] > 0.8 and results[1].contact.normals[0, 0] < -0.8
+
+
+def test_velocity_mode_touch(tmp_path):
+    world = SimWorld(_box(), TRUE, HAND_POSE)
+    with EmulatedRig(world, hand_transport="can", tactile_transport="tcp", time_scale=2.0) as r:
+        ex = GuardedTouchExecutor(r.open_hand(), r.open_tactile(), hand_pose=HAND_POSE, mode="velocity",
+                                  probe_speed=0.03)
+        x = ex.execute(ex.finger_touch(0, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)))
+        assert x.hit and np.all(_surface_distance(x.contact.points) < 0.003)
+        assert x.contact.normals[0, 0] > 0.8
+        got = r.hand_emulator.received
+        assert "con=1" in got and any(c.startswith("tvav=") for c in got)
+        assert got[got.index("con=1"):].count("con=0") == 1   # back to position control
+        assert r.sim.controller == 0 and np.all(r.sim.state != 2)
+        # a miss in velocity mode sweeps the whole line
+        y = ex.execute(ex.finger_touch(1, 0.0, (-0.045, 0.09), (-0.02, 0.09)))
+        assert not y.hit and y.travel == pytest.approx(0.025)

@@ -15,6 +15,7 @@ finished touch can be appended to a :class:`~touchloc.hardware.session.SessionLo
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,11 +83,19 @@ class GuardedTouchExecutor:
     retreat : bool
         Move the finger back to the start of the line and to the rest posture after
         each touch (default True).
+    mode : {"steps", "velocity"}
+        ``"steps"``: one position move (``m``) per waypoint, a tactile frame after each.
+        ``"velocity"``: the velocity controller (``con=1``): joint velocities towards a
+        point a few millimetres ahead on the line are sent with ``tvav`` after every
+        tactile frame, until contact; then velocities 0, ``stop`` and ``con=0``.
+    probe_speed : float
+        Speed of the probe point along the line in velocity mode (m/s).
     """
 
     def __init__(self, hand, tactile, *, kinematics: SDH2Kinematics | None = None, hand_pose=None,
                  threshold: int = 200, step: float = 0.002, speed: float = math.radians(60),
-                 rest_angles=None, log=None, move_timeout: float = 5.0, retreat: bool = True):
+                 rest_angles=None, log=None, move_timeout: float = 5.0, retreat: bool = True,
+                 mode: str = "steps", probe_speed: float = 0.02):
         self.hand = hand
         self.tactile = tactile
         if kinematics is None:
@@ -116,6 +125,12 @@ class GuardedTouchExecutor:
         self.log = SessionLog(log) if log is not None and not isinstance(log, SessionLog) else log
         self.move_timeout = float(move_timeout)
         self.retreat = bool(retreat)
+        if mode not in ("steps", "velocity"):
+            raise ValidationError(f"mode must be 'steps' or 'velocity', got {mode!r}")
+        self.mode = mode
+        if not (probe_speed > 0):
+            raise ValidationError(f"probe_speed must be positive (m/s), got {probe_speed}")
+        self.probe_speed = float(probe_speed)
         self.stops_sent = 0
 
     # -- planning (no I/O) ----------------------------------------------------------------
@@ -217,6 +232,78 @@ class GuardedTouchExecutor:
             return [self.execute(t) for t in action.touches]
         raise ValidationError(f"action must be a GuardedTouch or HandTouch, got {type(action).__name__}")
 
+    def _contact(self, touch, f, angles, blobs):
+        kin = self.kinematics
+        probe = self.hand_pose[:3, :3] @ kin.probe_point(angles, f) + self.hand_pose[:3, 3]
+        travel = float(np.clip((probe - touch.origin) @ touch.direction, 0.0, touch.max_travel))
+        if blobs:
+            contact = blobs_to_contacts(blobs)
+        else:  # blocked without pressure: the probe point is the best guess
+            n = -(self.hand_pose[:3, :3] @ kin.finger_chain(angles, f)["n_d"])
+            contact = Contacts(probe[None], n[None])
+        return TouchResult(touch, travel, contact)
+
+    def _look(self, plan, pads):
+        frame = self.tactile.read_frame()
+        angles = self.hand.actual_angles()
+        blobs = find_blobs(frame, angles, self.kinematics, threshold=self.threshold, matrices=pads,
+                           hand_pose=self.hand_pose)
+        return angles, blobs
+
+    def _stepped_touch(self, touch, plan, ax, pads, st):
+        for i in range(len(plan.travel)):
+            if i > 0:
+                st = self._move(plan.angles[i])
+            angles, blobs = self._look(plan, pads)
+            if blobs or np.any(np.isin(st[ax], (4, 5))):
+                return self._contact(touch, plan.finger, angles, blobs), angles, blobs
+        angles = self.hand.actual_angles()
+        return TouchResult(touch, touch.max_travel, None), angles, []
+
+    def _velocity_touch(self, touch, plan, ax, pads):
+        hand, kin = self.hand, self.kinematics
+        f = plan.finger
+        lookahead = max(2.0 * self.step, 0.003)
+        horizon = lookahead / self.probe_speed      # s to reach the look-ahead point
+        vmax = np.minimum(np.full(7, self.speed), hand.velocity_limits)
+        zero = np.zeros(7)
+        deadline = time.monotonic() + 3.0 * touch.max_travel / self.probe_speed + self.move_timeout
+        hand.controller(1)
+        try:
+            while True:
+                angles, blobs = self._look(plan, pads)
+                st = hand.state()
+                if blobs or np.any(np.isin(st[ax], (4, 5))):
+                    hand.set_velocities_get_actual(zero)
+                    self._leave_velocity_mode(vmax)
+                    return self._contact(touch, f, angles, blobs), angles, blobs
+                probe = self.hand_pose[:3, :3] @ kin.probe_point(angles, f) + self.hand_pose[:3, 3]
+                t_cur = float((probe - touch.origin) @ touch.direction)
+                if t_cur >= touch.max_travel - 1e-4:
+                    hand.set_velocities_get_actual(zero)
+                    self._leave_velocity_mode(vmax)
+                    return TouchResult(touch, touch.max_travel, None), angles, []
+                if time.monotonic() > deadline:
+                    raise TouchAborted(f"velocity touch {touch.name!r} made no progress "
+                                       f"({t_cur * 1e3:.1f} of {touch.max_travel * 1e3:.1f} mm)")
+                t_tgt = min(max(t_cur, 0.0) + lookahead, touch.max_travel)
+                q_tgt = np.array([np.interp(t_tgt, plan.travel, plan.angles[:, j]) for j in range(7)])
+                v = np.zeros(7)
+                v[ax] = np.clip((q_tgt[ax] - angles[ax]) / horizon, -vmax[ax], vmax[ax])
+                hand.set_velocities_get_actual(v)
+        except BaseException:
+            try:  # best effort; the original error is what the caller needs
+                hand.stop()
+                hand.controller(0)
+            except HardwareError:
+                pass
+            raise
+
+    def _leave_velocity_mode(self, vmax) -> None:
+        self.hand.stop()
+        self.hand.controller(0)
+        self.hand.set_target_velocities(vmax)  # position moves use them as speeds
+
     def _move(self, angles) -> np.ndarray:
         duration = self.hand.move(angles)
         return self.hand.wait_until_idle(max(self.move_timeout, 3.0 * duration + 1.0))
@@ -236,28 +323,10 @@ class GuardedTouchExecutor:
         st = self._move(plan.angles[0])
         if np.any(np.isin(st[ax], (4, 5))):
             raise TouchAborted(f"finger {f} was blocked on its way to the start of touch {touch.name!r}")
-        result = None
-        for i in range(len(plan.travel)):
-            if i > 0:
-                st = self._move(plan.angles[i])
-            frame = self.tactile.read_frame()
-            angles = hand.actual_angles()
-            blobs = find_blobs(frame, angles, kin, threshold=self.threshold, matrices=pads, hand_pose=self.hand_pose)
-            blocked = bool(np.any(np.isin(st[ax], (4, 5))))
-            if blobs or blocked:
-                probe = self.hand_pose[:3, :3] @ kin.probe_point(angles, f) + self.hand_pose[:3, 3]
-                travel = float(np.clip((probe - touch.origin) @ touch.direction, 0.0, touch.max_travel))
-                if blobs:
-                    contact = blobs_to_contacts(blobs)
-                else:  # blocked without pressure: the probe point is the best guess
-                    n = -(self.hand_pose[:3, :3] @ kin.finger_chain(angles, f)["n_d"])
-                    contact = Contacts(probe[None], n[None])
-                result = TouchResult(touch, travel, contact)
-                break
+        if self.mode == "velocity":
+            result, angles, blobs = self._velocity_touch(touch, plan, ax, pads)
         else:
-            angles = hand.actual_angles()
-            blobs = []
-            result = TouchResult(touch, touch.max_travel, None)
+            result, angles, blobs = self._stepped_touch(touch, plan, ax, pads, st)
         if self.retreat:
             self._move(plan.angles[0])
             self._move(rest)
