@@ -50,6 +50,15 @@ def test_rejection_protocol_holds_classes_back():
     assert r.true_reject is not None and r.true_reject.mean() > 0.5
 
 
+def test_numeric_labels_are_rejected_as_minus_one():
+    X, y = _toy(n_classes=3)
+    known = y < 2
+    clf = NearestNeighbourClassifier(align=False, reject_quantile=0.9).fit(X[known], y[known])
+    pred = clf.predict(X[~known], reject=True)
+    assert pred.dtype.kind == "i" and np.all(pred == -1)
+    assert set(clf.predict(X[known], reject=True).tolist()) <= {-1, 0, 1}
+
+
 def test_roc_auc_and_curve():
     assert roc_auc([0, 1, 2], [3, 4]) == 1.0
     assert roc_auc([3, 4], [0, 1, 2]) == 0.0

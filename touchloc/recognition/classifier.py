@@ -7,7 +7,7 @@ The pipeline of seed 002 (Fig. 5):
 2. vector quantisation of x with activity equalisation (AEV): ``n_vq`` reference vectors,
    each training sample belongs to the cell of its nearest reference;
 3. local PCA: ``n_pc`` principal components per cell, by Sanger's rule (as in the seed) or
-   by a direct SVD (the default: same subspace, far faster);
+   by a direct SVD (the default: the same subspace without iterations);
 4. a Local Linear Map per cell (``n_llm`` nodes, each with a linear map) from the
    projection p in R^n_pc to a score per class; the winner class is the arg max.
 
@@ -396,7 +396,7 @@ class SequenceClassifier(_SequenceModel):
     pca : {"svd", "sanger"}
         How the local PCs are computed: a direct batched SVD (default; through the
         (m, m) Gram matrices of the cells, exact up to rounding) or Sanger's rule
-        as in seed 002 (same subspace up to convergence, much slower).
+        as in seed 002 (the same subspace up to convergence, slower).
     align : bool
         Centre-of-gravity alignment of each whole sequence (seed 002).
     scale : float
