@@ -53,19 +53,19 @@ def hand_pose(height: float) -> np.ndarray:
 
 
 def touch_sequence(ex: GuardedTouchExecutor):
-    """A fixed set of horizontal touches: thumb, and fingers 0 and 2 at several base angles.
+    """A fixed set of horizontal touches: the thumb, and fingers 0 and 2 at six base angles.
 
-    Each line lies in a finger plane, at plane heights 0.108 and 0.116 m below the
-    proximal joints (where the distal pads are close to vertical), from 30 mm outside
-    the joint to 40 mm inside.
+    Each line lies in a finger plane, 0.112 m below the proximal joints (where the distal
+    pads are close to vertical), from 30 mm outside the joint to 40 mm inside. Base angles
+    from 0 to 90 deg make fingers 0 and 2 approach from directions spread over half a turn
+    on each side, so that a long object meets some touch on every face.
     """
-    touches = []
-    for z in (0.108, 0.116):
-        touches.append(ex.finger_touch(1, 0.0, (-0.03, z), (0.04, z), name=f"thumb z={z}"))
-        for a0 in (90.0, 60.0, 30.0):
-            for f in (0, 2):
-                touches.append(ex.finger_touch(f, math.radians(a0), (-0.03, z), (0.04, z),
-                                               name=f"finger {f} a0={a0:.0f} z={z}"))
+    z = 0.112
+    touches = [ex.finger_touch(1, 0.0, (-0.03, z), (0.04, z), name="thumb")]
+    for a0 in (90.0, 72.0, 54.0, 36.0, 18.0, 0.0):
+        for f in (0, 2):
+            touches.append(ex.finger_touch(f, math.radians(a0), (-0.03, z), (0.04, z),
+                                           name=f"finger {f} a0={a0:.0f}"))
     return touches
 
 

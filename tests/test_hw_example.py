@@ -17,4 +17,4 @@ def test_example_recovers_the_hidden_pose(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "error:" in out, out
     assert code == 0, out   # within 5 mm and 10 deg of the hidden pose
-    assert (tmp_path / "session.jsonl").read_text().count("\n") == 14
+    assert (tmp_path / "session.jsonl").read_text().count("\n") == 13
