@@ -1,6 +1,21 @@
-"""What we believe: pose regions, particle beliefs and the estimators that produce them."""
+"""What we believe: pose regions, particle beliefs and the estimators that produce them.
 
+Static estimators have ``localize(contacts, region) -> ParticleBelief``; filters have
+``initialize(region)``, ``predict()``, ``update(contacts)`` and ``.belief``.
+"""
+
+from ._common import DegenerateBeliefWarning
+from .annealed import AnnealedParticleFilter, ManifoldParticleFilter
+from .histogram import HistogramFilter
+from .mcmc import MCMC
+from .metrics import add, add_s, pose_errors
+from .particle_filter import ParticleFilter
 from .particles import RESAMPLERS, ParticleBelief, register_resampler, systematic_resample
 from .region import PoseRegion
+from .scaling_series import ScaleStep, ScalingSeries
 
-__all__ = ["PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample"]
+__all__ = [
+    "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
+    "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
+    "ManifoldParticleFilter", "MCMC", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
+]

@@ -163,9 +163,10 @@ class ParticleBelief:
 
         ``gaussian``: entropy of a Gaussian with the belief's covariance, floored at the
         belief's resolution (an upper bound for the true entropy; comparable between
-        beliefs of any particle count, cheap). ``kde``: the plug-in estimate
-        ``-sum_i w_i log p(x_i)`` under a Gaussian kernel density with a fixed bandwidth
-        (the resolution, or Silverman's rule), which sees multiple modes.
+        beliefs of any particle count, cheap). ``kde``: the leave-one-out estimate
+        ``-sum_i w_i log p_{-i}(x_i)`` under a Gaussian kernel density (bandwidth: the
+        resolution, or else Silverman's rule, which over-smooths well separated modes), which sees multiple modes; O(N^2), so at most
+        the 2000 heaviest particles are used.
         """
         d = self._region().dim
         if method == "gaussian":
@@ -182,11 +183,15 @@ class ParticleBelief:
                 v, w = v[keep], w[keep] / w[keep].sum()
             ess = max(self.ess(), 1.0)
             sd = np.sqrt(np.maximum(np.diag(self.covariance()).mean(), 1e-18))
-            h = max(self.resolution or 0.0, sd * (4.0 / ((d + 2.0) * ess)) ** (1.0 / (d + 4.0)))
+            h = self.resolution or sd * (4.0 / ((d + 2.0) * ess)) ** (1.0 / (d + 4.0))
             d2 = np.sum((v[:, None, :] - v[None, :, :]) ** 2, axis=2)
             logk = -0.5 * d2 / h**2 - 0.5 * d * np.log(2 * np.pi * h**2)
-            logp = logsumexp(logk + np.log(w)[None, :], axis=1)
-            return float(-(w * logp).sum())
+            # leave-one-out: a particle's own kernel would bias the estimate low
+            np.fill_diagonal(logk, -np.inf)
+            with np.errstate(divide="ignore"):
+                logp = logsumexp(logk + np.log(w)[None, :], axis=1) - np.log1p(-np.minimum(w, 1 - 1e-12))
+            ok = np.isfinite(logp)
+            return float(-(w[ok] * logp[ok]).sum() / w[ok].sum())
         raise ValidationError(f"entropy method must be 'gaussian' or 'kde', got {method!r}")
 
     # -- operations --------------------------------------------------------------------

@@ -27,10 +27,11 @@ def contacts_in_object_frame(poses: np.ndarray, contacts: Contacts):
     """
     R = poses[:, :3, :3]
     t = poses[:, :3, 3]
-    P = np.einsum("nji,nkj->nki", R, contacts.points[None, :, :] - t[:, None, :])
+    # row-vector form: R^T (p - t) for every pose and contact is (p - t) @ R
+    P = (contacts.points[None, :, :] - t[:, None, :]) @ R
     Nrm = None
     if contacts.normals is not None:
-        Nrm = np.einsum("nji,kj->nki", R, contacts.normals)
+        Nrm = contacts.normals[None, :, :] @ R
     return P, Nrm
 
 

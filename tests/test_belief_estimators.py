@@ -1,0 +1,168 @@
+"""Estimators recover known poses and agree with an analytic posterior."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from touchloc import geometry
+from touchloc.belief import (MCMC, AnnealedParticleFilter, DegenerateBeliefWarning, HistogramFilter,
+                             ManifoldParticleFilter, ParticleFilter, PoseRegion, ScalingSeries, add_s)
+from touchloc.errors import BeliefDegenerateError, ValidationError
+from touchloc.models import Contacts, GaussianDynamics, MeasurementModel, MeshObject, ProximityModel
+
+
+@pytest.fixture(scope="module")
+def box():
+    return MeshObject(trimesh.creation.box(extents=(0.08, 0.05, 0.03)), name="box")
+
+
+def face_contacts(obj, pose, per_face=3, noise=0.0, rng=None):
+    """Contacts on every face of a box (all six touched)."""
+    rng = np.random.default_rng(rng)
+    pts, nrm = [], []
+    for f in range(len(obj.triangles)):
+        tri = obj.triangles[f]
+        u = rng.random((per_face // 2 + 1, 2))
+        u[u.sum(1) > 1] = 1 - u[u.sum(1) > 1]
+        pts.append(tri[0] + u[:, :1] * (tri[1] - tri[0]) + u[:, 1:] * (tri[2] - tri[0]))
+        nrm.append(np.repeat(obj.face_normals[f][None], len(u), axis=0))
+    P = np.concatenate(pts) + rng.normal(scale=noise, size=(sum(len(p) for p in pts), 3))
+    return Contacts(P, np.concatenate(nrm)).transform(pose)
+
+
+def test_scaling_series_recovers_a_box_touched_on_all_six_faces(box):
+    region = PoseRegion.box((0, 0, 0), 0.05, "full")
+    true = region.sample(1, rng=3)[0]
+    contacts = face_contacts(box, true, noise=0.001, rng=4)
+    model = ProximityModel(box, 0.002, 0.1)
+    steps = list(ScalingSeries(model, rng=0).iterate(contacts, region))
+    deltas = [s.delta for s in steps]
+    assert all(a > b for a, b in zip(deltas, deltas[1:]))
+    assert steps[-1].tau == 1.0 and steps[0].tau > 100
+    b = steps[-1].belief
+    assert add_s(box, b.map_pose(), true) < 0.003
+    assert not b.degenerate
+
+
+def one_dof_problem(box, x_true=0.01, sigma=0.004):
+    """Object slides along x only; one position-only contact on its +x face."""
+    region = PoseRegion.box((0, 0, 0), (0.03, 0.0, 0.0), np.eye(3))
+    c = Contacts([[x_true + 0.04 + 0.002, 0.0, 0.0]])  # measured 2 mm outside the face
+    model = ProximityModel(box, sigma, None)
+    # analytic posterior: x ~ N(c - 0.04, sigma^2) (the +x face is closest for all x here)
+    return region, c, model, x_true + 0.002, sigma
+
+
+def test_histogram_and_particle_filter_agree_with_the_analytic_posterior(box):
+    region, c, model, mu, sd = one_dof_problem(box)
+    hf = HistogramFilter(model, resolution=0.0002).localize(c, region)
+    pf = ParticleFilter(model, n_particles=20000, rng=1).localize(c, region)
+    for b, tol in ((hf, 0.0002), (pf, 0.0005)):
+        x = b.poses[:, 0, 3]
+        m = np.sum(b.weights * x)
+        s = np.sqrt(np.sum(b.weights * (x - m) ** 2))
+        assert m == pytest.approx(mu, abs=tol)
+        assert s == pytest.approx(sd, rel=0.05)
+
+
+def test_planar_estimators_localise_the_cereal_box(objects):
+    # (the mug is ambiguous in yaw unless its handle is touched: not a test of the estimators)
+    obj = objects["cereal"]
+    region = PoseRegion.planar((0, 0), 0.04)
+    rng = np.random.default_rng(2)
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = obj.sample_surface(12, rng=rng)
+    c = Contacts(p + rng.normal(scale=0.001, size=p.shape), n).transform(true)
+    model = ProximityModel(obj, 0.002, 0.15)
+    for est in (HistogramFilter(model, resolution=0.003, angular_resolution=np.radians(1.5)),
+                ParticleFilter(model, n_particles=20000, rng=0), ScalingSeries(model, rng=0),
+                AnnealedParticleFilter(model, 2000, rng=0), ManifoldParticleFilter(model, 4000, rng=0)):
+        b = est.localize(c, region)
+        assert add_s(obj, b.map_pose(), true) < 0.005, type(est).__name__
+
+
+def test_particle_filter_tracks_a_sliding_object(box):
+    region = PoseRegion.planar((0, 0), 0.03)
+    model = ProximityModel(box, 0.002, 0.15)
+    pf = ParticleFilter(model, GaussianDynamics(0.004, 0.05, planar=True), n_particles=4000, rng=0)
+    pf.initialize(region)
+    true = np.eye(4)
+    errs = []
+    for step in range(6):
+        true = true.copy()
+        true[0, 3] += 0.003  # the object slides 3 mm per step
+        pf.predict()
+        pf.update(face_contacts(box, true, per_face=1, noise=0.0005, rng=step))
+        errs.append(add_s(box, pf.belief.mean_pose(), true))
+    assert errs[-1] < 0.003
+
+
+def test_histogram_prediction_blurs_by_the_dynamics(box):
+    region = PoseRegion.box((0, 0, 0), (0.03, 0, 0), np.eye(3))
+    hf = HistogramFilter(box and ProximityModel(box, 0.002), GaussianDynamics(0.002, 0.0), resolution=0.0005)
+    hf.initialize(region)
+    hf._log_p[:] = -np.inf
+    hf._log_p[60] = 0.0  # all mass in one cell at x = 0.00025
+    hf.predict()
+    b = hf.belief
+    x = b.poses[:, 0, 3]
+    m = np.sum(b.weights * x)
+    assert np.sqrt(np.sum(b.weights * (x - m) ** 2)) == pytest.approx(0.002, rel=0.05)
+
+
+def test_mcmc_refines_a_scaling_series_belief(box):
+    region = PoseRegion.box((0, 0, 0), 0.03, "yaw")
+    true = region.sample(1, rng=5)[0]
+    contacts = face_contacts(box, true, noise=0.001, rng=6)
+    model = ProximityModel(box, 0.002, 0.1)
+    start = ScalingSeries(model, rng=0).localize(contacts, region)
+    chain = MCMC(model, n_walkers=16, n_steps=150, burn=100, rng=0).refine(contacts, start)
+    assert 0.1 < chain.info["acceptance"] < 0.9
+    assert add_s(box, chain.mean_pose(), true) < 0.002
+    with pytest.raises(ValidationError, match="n_walkers"):
+        MCMC(model, n_walkers=4).refine(contacts, start)
+
+
+def test_contacts_far_from_the_region_give_a_flagged_belief_not_nan(box):
+    region = PoseRegion.box((0, 0, 0), 0.02, "yaw")
+    c = Contacts([[1.0, 1.0, 1.0], [1.0, 1.1, 1.0]], [[0, 0, 1.0], [0, 0, 1.0]])
+    model = ProximityModel(box, 0.002, 0.1)
+    with pytest.warns(DegenerateBeliefWarning, match="sigma"):
+        b = ScalingSeries(model, rng=0).localize(c, region)
+    assert b.degenerate and np.all(np.isfinite(b.poses)) and np.all(np.isfinite(b.weights))
+    with pytest.warns(DegenerateBeliefWarning):
+        assert ParticleFilter(model, n_particles=500, rng=0).localize(c, region).degenerate
+
+
+class Impossible(MeasurementModel):
+    """A user model under which every pose has zero likelihood (all underflow)."""
+
+    def __init__(self, obj):
+        self.obj = obj
+
+    def log_likelihood(self, poses, contacts=None, temperature=1.0):
+        return np.full(len(poses), -np.inf)
+
+
+def test_impossible_measurements_raise_a_clear_error(box):
+    region = PoseRegion.box((0, 0, 0), (0.01, 0.0, 0.0), np.eye(3))
+    c = Contacts([[0.0, 0.0, 0.0]])
+    for est in (HistogramFilter(Impossible(box), resolution=0.001), ParticleFilter(Impossible(box), n_particles=50),
+                ScalingSeries(Impossible(box), rng=0)):
+        with pytest.raises(BeliefDegenerateError, match="explains"):
+            est.localize(c, region)
+
+
+def test_estimators_reject_bad_inputs(box):
+    model = ProximityModel(box, 0.002)
+    region = PoseRegion.box()
+    with pytest.raises(ValidationError, match="empty"):
+        ScalingSeries(model).localize(Contacts(np.zeros((0, 3))), region)
+    with pytest.raises(ValidationError, match="PoseRegion"):
+        ScalingSeries(model).localize(Contacts(np.zeros((1, 3))), "everywhere")
+    with pytest.raises(ValidationError, match="measurement model"):
+        ScalingSeries("model")
+    with pytest.raises(ValidationError, match="3 DOF"):
+        HistogramFilter(model).initialize(region)
+    with pytest.raises(ValidationError, match="initialize"):
+        ParticleFilter(model).update(Contacts(np.zeros((1, 3))))

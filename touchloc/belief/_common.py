@@ -1,0 +1,71 @@
+"""Shared plumbing of the estimators."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..errors import BeliefDegenerateError, ValidationError
+from ..models import Contacts
+from ..models.base import MeasurementModel
+from .particles import ParticleBelief
+from .region import PoseRegion
+
+#: mean d_M^2 per contact at the MAP pose above which a belief is flagged degenerate
+#: (36 = every contact 6 sigma from the surface on average)
+DEGENERATE_COST = 36.0
+
+
+class DegenerateBeliefWarning(UserWarning):
+    """The best pose explains the contacts badly: they may be outside the region."""
+
+
+def check_model(model) -> MeasurementModel:
+    if not isinstance(model, MeasurementModel) or getattr(model, "obj", None) is None:
+        raise ValidationError(f"model must be a touchloc measurement model, got {type(model).__name__}")
+    return model
+
+
+def check_region(region, model) -> PoseRegion:
+    if not isinstance(region, PoseRegion):
+        raise ValidationError(f"region must be a PoseRegion, got {type(region).__name__}")
+    if region.rho is None:
+        region = region.with_rho(model.obj.radius)
+    return region
+
+
+def check_contacts(contacts) -> Contacts:
+    if not isinstance(contacts, Contacts):
+        raise ValidationError(f"contacts must be a touchloc.models.Contacts, got {type(contacts).__name__}")
+    if len(contacts) == 0:
+        raise ValidationError("contacts is empty: localisation needs at least one contact")
+    return contacts
+
+
+def finite_loglik(ll: np.ndarray) -> np.ndarray:
+    ll = np.asarray(ll, dtype=float)
+    if np.any(np.isnan(ll)):
+        raise BeliefDegenerateError("the measurement model returned NaN log-likelihoods")
+    if not np.any(np.isfinite(ll)):
+        raise BeliefDegenerateError("every pose has zero likelihood: no pose in the region explains the contacts")
+    return ll
+
+
+def flag_degenerate(belief: ParticleBelief, loglik_map: float, contacts: Contacts) -> ParticleBelief:
+    """Mark a belief whose best particle explains the contacts badly (and warn)."""
+    mean_cost = -2.0 * loglik_map / max(len(contacts), 1)
+    belief.info["mean_cost_at_map"] = float(mean_cost)
+    if mean_cost > DEGENERATE_COST:
+        belief.degenerate = True
+        warnings.warn(
+            f"the best pose leaves the contacts {np.sqrt(mean_cost):.1f} sigma from the surface on "
+            "average: the object is probably not in the region, or the contacts are not on this "
+            "object; the belief is flagged degenerate", DegenerateBeliefWarning, stacklevel=3)
+    return belief
+
+
+def ball_volume(dim: int, r: float) -> float:
+    from scipy.special import gammaln
+
+    return float(np.exp(0.5 * dim * np.log(np.pi) - gammaln(0.5 * dim + 1) + dim * np.log(r)))

@@ -1,0 +1,105 @@
+"""Particle filter: importance sampling (static) and resample-move with roughening (dynamic)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .._util import as_rng
+from ..errors import ValidationError
+from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate
+from .particles import ParticleBelief
+from .region import PoseRegion
+
+__all__ = ["ParticleFilter"]
+
+
+class ParticleFilter:
+    """Sampling importance resampling over object poses.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    dynamics : GaussianDynamics, optional
+        Motion between updates (needed by :meth:`predict`).
+    n_particles : int
+    resample_threshold : float
+        Resample when ESS < threshold * N (0..1).
+    roughening : float
+        After resampling, jitter each particle with a Gaussian of standard deviation
+        ``roughening * sd * N^(-1/dim)`` per metric coordinate, sd being the belief's
+        spread (Gordon et al. 1993), so duplicates spread over the peak.
+    rng : None, int or Generator
+    """
+
+    def __init__(self, model, dynamics=None, n_particles: int = 5000, *, resample_threshold: float = 0.5,
+                 roughening: float = 0.2, rho: float | None = None, rng=None):
+        self.model = check_model(model)
+        if int(n_particles) < 1:
+            raise ValidationError(f"n_particles must be a positive integer, got {n_particles}")
+        if not 0 <= resample_threshold <= 1:
+            raise ValidationError("resample_threshold must be in [0, 1]")
+        self.dynamics = dynamics
+        self.n_particles = int(n_particles)
+        self.resample_threshold = float(resample_threshold)
+        self.roughening = float(roughening)
+        self.rho = rho
+        self.rng = as_rng(rng)
+        self.belief: ParticleBelief | None = None
+        self.region: PoseRegion | None = None
+
+    def _resolution(self, region):
+        return (region.volume() / self.n_particles) ** (1.0 / region.dim)
+
+    # -- static ------------------------------------------------------------------------
+    def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
+        """Importance sampling: n_particles uniform poses weighted by the likelihood."""
+        t0 = time.perf_counter()
+        self.initialize(region)
+        b = self.update(contacts, resample=False)
+        b.info["seconds"] = time.perf_counter() - t0
+        return b
+
+    # -- dynamic -----------------------------------------------------------------------
+    def initialize(self, region: PoseRegion) -> None:
+        """Uniform particles over the region."""
+        region = check_region(region if self.rho is None else region.with_rho(self.rho), self.model)
+        self.region = region
+        X = region.sample(self.n_particles, rng=self.rng)
+        self.belief = ParticleBelief(X, region=region, resolution=self._resolution(region))
+
+    def _require(self):
+        if self.belief is None:
+            raise ValidationError("call initialize(region) first")
+
+    def predict(self) -> None:
+        """Move every particle by a draw from the dynamics."""
+        self._require()
+        if self.dynamics is None:
+            raise ValidationError("predict() needs dynamics=GaussianDynamics(...)")
+        X = self.dynamics.sample(self.belief.poses, rng=self.rng)
+        self.belief = self.belief.with_particles(X, self.belief.log_weights)
+
+    def update(self, contacts, *, resample: bool = True) -> ParticleBelief:
+        """Weight by the likelihood of the contacts; resample and roughen when the ESS drops."""
+        self._require()
+        contacts = check_contacts(contacts)
+        ll = finite_loglik(self.model.log_likelihood(self.belief.poses, contacts))
+        b = self.belief.with_particles(self.belief.poses, self.belief.log_weights + ll)
+        flag_degenerate(b, float(ll[np.argmax(b.log_weights)]), contacts)
+        if resample and b.ess() < self.resample_threshold * len(b):
+            b = self._resample_move(b)
+        self.belief = b
+        return b
+
+    def _resample_move(self, b: ParticleBelief) -> ParticleBelief:
+        reg = self.region
+        sd = np.sqrt(np.clip(np.diag(b.covariance()), 0, None)).mean()
+        scale = self.roughening * max(sd, 1e-9) * len(b) ** (-1.0 / reg.dim)
+        r = b.resample(rng=self.rng)
+        X = reg.perturb(r.poses, scale, rng=self.rng, ball=False)
+        out = r.with_particles(X, None)
+        out.degenerate = b.degenerate
+        out.info.update(b.info)
+        return out

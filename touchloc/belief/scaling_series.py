@@ -1,0 +1,300 @@
+"""Scaling Series (Petrovskaya, Handbook of Robotics ch. 42, Alg. 1), static and dynamic."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._util import as_rng, progress
+from ..errors import ValidationError
+from ._common import (ball_volume, check_contacts, check_model, check_region, finite_loglik,
+                      flag_degenerate)
+from .particles import ParticleBelief, systematic_resample
+from .region import PoseRegion
+
+__all__ = ["ScalingSeries", "ScaleStep"]
+
+
+@dataclass
+class ScaleStep:
+    """One iteration of Scaling Series: the particles at scale ``delta`` and temperature ``tau``."""
+
+    index: int
+    delta: float
+    tau: float
+    n_particles: int
+    n_survivors: int
+    belief: ParticleBelief
+    seconds: float
+
+
+class ScalingSeries:
+    """Scaling Series: anneal and refine broad particles down to a terminal scale.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    delta_final : float, optional
+        Terminal neighbourhood radius delta* (pose metric, m) of Alg. 1. Default: twice
+        the model's sigma_pos (or 4 mm). The temperature at scale delta is
+        (delta / delta*)^2.
+    refine_to : float, optional
+        Beyond Alg. 1: after reaching delta*, keep zooming at temperature 1 down to this
+        radius (m), so that the final particles resolve posteriors narrower than delta*
+        (many contacts); "auto" is sigma_pos / 2. Default None (or >= delta_final)
+        stops at delta* exactly as Alg. 1.
+    m_per_delta : int
+        Particles per delta-neighbourhood (M of Alg. 1).
+    n_initial : int
+        Floor on the particle count of the first cover of the region.
+    max_particles : int
+        Cap on the particles of one scale (bounds time when the belief is very spread).
+    prune : {"threshold", "resample"}
+        The Prune step of Alg. 1: keep particles whose annealed weight is at least
+        ``prune_ratio`` times the best ("threshold"), or the distinct particles of a
+        weighted resampling ("resample").
+    prune_ratio : float
+    anneal : {"alg1", "contacts"} or float
+        Temperature schedule tau = g (delta / delta*)^2, floored at 1 during the series;
+        the final weights always use tau = 1. "alg1" (default): g = 1, as Alg. 1 states
+        it. "contacts": g = sqrt(K) for K contacts, which widens the annealed posterior
+        (whose width shrinks with K) so fewer true modes are pruned, at the price of
+        more particles per scale. A number sets g directly.
+    dynamics : GaussianDynamics, optional
+        For the dynamic filter (initialize / predict / update).
+    rho : float, optional
+        Rotation scale of the pose metric (m); default: the object's radius.
+    progress : bool, optional
+        tqdm bar over the scales (default: when stderr is a terminal).
+    rng : None, int or Generator
+    """
+
+    def __init__(self, model, *, delta_final: float | None = None, refine_to: float | str | None = None,
+                 m_per_delta: int = 6,
+                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
+                 prune_ratio: float = 0.01, anneal: str | float = "alg1", dynamics=None,
+                 rho: float | None = None, progress: bool | None = None, rng=None):
+        self.model = check_model(model)
+        sp = getattr(model, "sigma_pos", None)
+        self.delta_final = float(delta_final) if delta_final else (2.0 * sp if sp else 0.004)
+        if not (np.isfinite(self.delta_final) and self.delta_final > 0):
+            raise ValidationError(f"delta_final must be > 0 (m), got {delta_final}")
+        if isinstance(refine_to, str):
+            if refine_to != "auto":
+                raise ValidationError(f"refine_to must be a radius (m), None or 'auto', got {refine_to!r}")
+            refine_to = 0.5 * sp if sp else None
+        self.refine_to = None if refine_to is None else min(float(refine_to), self.delta_final)
+        if int(m_per_delta) < 1 or int(max_particles) < 1 or int(n_initial) < 1:
+            raise ValidationError("m_per_delta, n_initial and max_particles must be positive integers")
+        if prune not in ("threshold", "resample"):
+            raise ValidationError(f"prune must be 'threshold' or 'resample', got {prune!r}")
+        if not 0 < prune_ratio < 1:
+            raise ValidationError(f"prune_ratio must be in (0, 1), got {prune_ratio}")
+        self.prune, self.prune_ratio = prune, float(prune_ratio)
+        if isinstance(anneal, str) and anneal not in ("contacts", "alg1"):
+            raise ValidationError(f"anneal must be 'contacts', 'alg1' or a gain > 0, got {anneal!r}")
+        if not isinstance(anneal, str) and not (np.isfinite(anneal) and anneal > 0):
+            raise ValidationError(f"anneal gain must be > 0, got {anneal!r}")
+        self.anneal = anneal
+        self.m = int(m_per_delta)
+        self.n_initial = int(n_initial)
+        self.max_particles = int(max_particles)
+        self.dynamics = dynamics
+        self.rho = rho
+        self.progress = progress
+        self.rng = as_rng(rng)
+        self.belief: ParticleBelief | None = None
+        self._region: PoseRegion | None = None
+        self._pending_predict = False
+
+    # -- Alg. 1 building blocks -------------------------------------------------------
+    def _even_density_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float):
+        """Sample M particles per delta-neighbourhood of the union of delta_prev balls.
+
+        Rejection sampling: draw from the ball of a random centre, keep a draw with
+        probability 1 / (number of balls containing it), and keep draws inside the
+        region. Returns poses and the estimated volume of the union.
+        """
+        dim = region.dim
+        rng = self.rng
+        n_c = len(centers)
+        per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
+        total = min(n_c * per, 4 * self.max_particles)
+        pick = rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+        cand = region.perturb(centers[pick], delta_prev, rng=rng, ball=True)
+        inside = region.contains(cand)
+        emb_c = region.embed(centers)
+        tree = cKDTree(emb_c)
+        emb = region.embed(cand)
+        count = tree.query_ball_point(emb, r=delta_prev * 1.0000001, return_length=True)
+        flip = region.embed_flipped(cand)
+        if flip is not None:
+            count = count + tree.query_ball_point(flip, r=delta_prev * 1.0000001, return_length=True)
+        count = np.maximum(count, 1)
+        keep = inside & (rng.random(len(cand)) < 1.0 / count)
+        acc = keep.mean()
+        volume = n_c * ball_volume(dim, delta_prev) * acc
+        n_target = int(np.clip(round(self.m * volume / ball_volume(dim, delta)), 1, self.max_particles))
+        idx = np.flatnonzero(keep)
+        if len(idx) == 0:  # every draw fell outside the region: keep the centres
+            return centers.copy(), volume
+        if len(idx) > n_target:
+            idx = rng.choice(idx, n_target, replace=False)
+        return cand[idx], volume
+
+    def _prune(self, poses, log_w):
+        """Drop low-probability regions: "resample" keeps the distinct particles of a
+        weighted resampling; "threshold" keeps every particle whose weight is at least
+        ``prune_ratio`` times the largest."""
+        if self.prune == "threshold":
+            return poses[log_w >= log_w.max() + np.log(self.prune_ratio)]
+        w = np.exp(log_w - log_w.max())
+        w /= w.sum()
+        idx = np.unique(systematic_resample(w, len(w), self.rng))
+        return poses[idx]
+
+    # -- static ------------------------------------------------------------------------
+    def iterate(self, contacts, region: PoseRegion, *, centers=None, delta0: float | None = None,
+                log_prior=None):
+        """Run Alg. 1 one scale at a time, yielding a :class:`ScaleStep` per scale.
+
+        The last step (``tau == 1``) holds the final belief. ``centers``/``delta0``
+        start from the union of balls around given poses instead of the whole region;
+        ``log_prior(poses) -> (N,)`` multiplies the final weights by a prior.
+        """
+        contacts = check_contacts(contacts)
+        region = check_region(region if self.rho is None else region.with_rho(self.rho), self.model)
+        dim = region.dim
+        if dim == 0:
+            raise ValidationError("the region has no free degree of freedom")
+        d_star = self.delta_final
+        if centers is None:
+            delta0 = region.radius()
+            n0 = max(self.n_initial, int(self.m * 2))
+            X = region.sample(n0, rng=self.rng)
+            first = True
+        else:
+            X = np.asarray(centers, dtype=float)
+            delta0 = float(delta0)
+            first = False
+        zoom = 2.0 ** (-1.0 / dim)
+        n_anneal = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
+        n_refine = 0
+        if self.refine_to is not None and self.refine_to < d_star:
+            n_refine = int(np.floor(dim * np.log2(d_star / self.refine_to)))
+        n_scales = n_anneal + n_refine
+        d_end = d_star * zoom**n_refine
+        delta = delta0
+        steps = progress(range(n_scales + 1), total=n_scales + 1, desc="scaling series", enabled=self.progress)
+        for n in steps:
+            t0 = time.perf_counter()
+            last = n == n_scales
+            if last:
+                new_delta, tau = d_end, 1.0
+            else:
+                new_delta = zoom * delta
+                gain = {"contacts": np.sqrt(len(contacts)), "alg1": 1.0}.get(self.anneal, self.anneal)
+                tau = max(gain * (new_delta / d_star) ** 2, 1.0)
+            if first:
+                first = False  # the initial uniform draw is the cover of V0
+            else:
+                X, _ = self._even_density_cover(region, X, delta, new_delta)
+            ll = finite_loglik(self.model.log_likelihood(X, contacts, temperature=tau))
+            lw = ll.copy()
+            if last and log_prior is not None:
+                lw = lw + log_prior(X)
+            belief = ParticleBelief(X, lw, region=region, resolution=new_delta)
+            n_part = len(X)
+            if last:
+                belief.info.update(delta_final=d_end, n_scales=n_scales)
+                flag_degenerate(belief, float(ll.max()), contacts)
+                yield ScaleStep(n, new_delta, tau, n_part, n_part, belief, time.perf_counter() - t0)
+                return
+            X = self._prune(X, lw)
+            delta = new_delta
+            yield ScaleStep(n, new_delta, tau, n_part, len(X), belief, time.perf_counter() - t0)
+
+    def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
+        """Static localisation with a uniform prior over ``region`` (Alg. 1).
+
+        Returns
+        -------
+        ParticleBelief
+            Weighted particles; ``info`` holds per-scale particle counts and timings.
+        """
+        t0 = time.perf_counter()
+        history = []
+        step = None
+        for step in self.iterate(contacts, region):
+            history.append((step.delta, step.tau, step.n_particles, step.n_survivors))
+        belief = step.belief
+        belief.info.update(scales=history, seconds=time.perf_counter() - t0,
+                           evaluations=int(sum(h[2] for h in history)))
+        return belief
+
+    # -- dynamic -------------------------------------------------------------------------
+    def initialize(self, region: PoseRegion) -> None:
+        """Start the dynamic filter with a uniform belief over ``region``."""
+        self._region = check_region(region if self.rho is None else region.with_rho(self.rho), self.model)
+        self.belief = None
+        self._pending_predict = False
+
+    def predict(self) -> None:
+        """Apply the dynamics at the next update (the prior becomes sum_m w_m p(X | X_m))."""
+        if self._region is None:
+            raise ValidationError("call initialize(region) first")
+        if self.dynamics is None:
+            raise ValidationError("predict() needs dynamics=GaussianDynamics(...)")
+        if self.belief is not None:
+            self._pending_predict = True
+
+    def update(self, contacts) -> ParticleBelief:
+        """Measurement update: Scaling Series on the support of the predicted prior, weights
+        multiplied by the prior propagated from the previous particle set (ch. 42.1.4)."""
+        if self._region is None:
+            raise ValidationError("call initialize(region) first")
+        prev = self.belief
+        if prev is None:
+            self.belief = self.localize(contacts, self._region)
+            return self.belief
+        reg = self._region
+        spread = 0.0
+        if self._pending_predict:
+            spread = 3.0 * np.hypot(self.dynamics.sigma_met, reg.rho * self.dynamics.sigma_ang)
+        # start from the previous particles' neighbourhoods, grown by the motion
+        keep = prev.credible_set(0.999)
+        centers = prev.poses[keep]
+        delta0 = (prev.resolution or self.delta_final) + spread
+        if self._pending_predict:
+            pp, plw = prev.poses[keep], prev.log_weights[keep]
+
+            def log_prior(X):
+                return self.dynamics.log_prior(X, pp, plw)
+        else:
+            log_prior = _kernel_prior(reg, prev.poses[keep], prev.log_weights[keep], delta0)
+        step = None
+        for step in self.iterate(contacts, reg, centers=centers, delta0=delta0, log_prior=log_prior):
+            pass
+        self.belief = step.belief
+        self._pending_predict = False
+        return self.belief
+
+
+def _kernel_prior(region, poses, log_w, delta):
+    """Without motion, the prior is the previous belief: a sum of delta-balls."""
+    from scipy.special import logsumexp
+
+    emb_p = region.embed(poses)
+
+    def log_prior(X):
+        e = region.embed(X)
+        d2 = np.sum((e[:, None, :] - emb_p[None, :, :]) ** 2, axis=2)
+        f = region.embed_flipped(X)
+        if f is not None:
+            d2 = np.minimum(d2, np.sum((f[:, None, :] - emb_p[None, :, :]) ** 2, axis=2))
+        return logsumexp(-0.5 * d2 / (delta / 2) ** 2 + log_w[None, :], axis=1)
+
+    return log_prior
