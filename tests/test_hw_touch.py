@@ -4,7 +4,6 @@ import json
 import math
 import warnings
 
-import can
 import numpy as np
 import pytest
 import trimesh

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import (DeviceDisconnected, FirmwareError, HardwareError, HardwareTimeout,
+from ..errors import (FirmwareError, HardwareError, HardwareTimeout,
                       JointLimitError, ProtocolError, ValidationError)
 from ._transport import CANLink, Link, as_link
 
@@ -285,7 +285,7 @@ class SDH2:
         DeviceDisconnected
             The transport closed.
         """
-        if not isinstance(cmd, str) or not cmd or "\n" in cmd or "\r" in cmd:
+        if not isinstance(cmd, str) or not cmd or not cmd.isascii() or "\n" in cmd or "\r" in cmd:
             raise ValidationError(f"command must be a non-empty single-line string, got {cmd!r}")
         m = re.match(r"^([a-z_]+)(\(\d+\))?", cmd)
         if m is None:
