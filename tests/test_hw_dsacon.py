@@ -179,6 +179,7 @@ def test_sensitivity_threshold(tactile):
 
 @pytest.mark.parametrize("fault,exc", [
     ("crc", ChecksumError), ("drop", HardwareTimeout), ("truncate", HardwareTimeout),
+    ("lose", (ChecksumError, HardwareTimeout)),
     ("error", DSAFirmwareError), ("silence", HardwareTimeout),
 ])
 def test_faults_are_typed_and_recoverable(tactile, fault, exc):

@@ -11,10 +11,11 @@ __all__ = ["Fault", "FaultPlan", "FAULT_KINDS"]
 
 #: what an emulator can do wrong, on purpose:
 #: error (answer a firmware error code), drop (swallow the reply), truncate (send half
-#: of the reply), garbage (noise before the reply), debug (an "@" line before the reply,
+#: of the reply), lose (drop 3 bytes from the middle of the reply, as a noisy UART),
+#: garbage (noise before the reply), debug (an "@" line before the reply,
 #: SDH-2 only), crc (a wrong CRC, DSACON32m only), silence (stop answering for good),
 #: disconnect (close the connection after the reply)
-FAULT_KINDS = ("error", "drop", "truncate", "garbage", "debug", "crc", "silence", "disconnect")
+FAULT_KINDS = ("error", "drop", "truncate", "lose", "garbage", "debug", "crc", "silence", "disconnect")
 
 
 @dataclass

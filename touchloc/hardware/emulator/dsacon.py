@@ -144,6 +144,9 @@ class DSACON32mEmulator:
             return b""
         if k == "truncate":
             return reply[: max(1, len(reply) // 2)]
+        if k == "lose":
+            i = len(reply) // 2
+            return reply[:i] + reply[i + 3:]
         if k == "crc" and len(reply) >= 8:
             return reply[:-2] + bytes([reply[-2] ^ 0xFF, reply[-1]])
         if k == "garbage":

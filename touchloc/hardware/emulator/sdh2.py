@@ -99,6 +99,9 @@ class SDH2Emulator:
             return b""
         if kind == "truncate":
             return reply[: max(1, len(reply) // 2)].rstrip(b"\r\n")
+        if kind == "lose":
+            i = len(reply) // 2
+            return reply[:i] + reply[i + 3:]
         if kind == "garbage":
             return b"\x00#!garbage\xff\r\n" + reply
         if kind == "debug":
