@@ -293,3 +293,14 @@ def test_velocity_mode_touch(tmp_path):
         # a miss in velocity mode sweeps the whole line
         y = ex.execute(ex.finger_touch(1, 0.0, (-0.045, 0.09), (-0.02, 0.09)))
         assert not y.hit and y.travel == pytest.approx(0.025)
+
+
+def test_thumb_touch_keeps_the_base_axis(rig):
+    r, ex = rig
+    if r.hand_transport != "can":
+        pytest.skip("one transport is enough here")
+    before = float(r.sim.angles[0])
+    ex.execute(ex.finger_touch(1, 0.0, (-0.03, 0.112), (0.04, 0.112)))
+    # every target the hand was sent kept axis 0 (fingers 0 and 2) where it was
+    sent = [c for c in r.hand_emulator.received if c.startswith("p=")]
+    assert sent and all(float(c[2:].split(",")[0]) == pytest.approx(before, abs=1e-3) for c in sent)

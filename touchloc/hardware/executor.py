@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -317,8 +317,11 @@ class GuardedTouchExecutor:
         rest = self.rest_angles.copy()
         if FINGER_AXES[f][0] is not None:
             rest[0] = plan.a0
-        else:
+        else:  # the thumb leaves the shared base axis of fingers 0 and 2 where it is
             rest[0] = hand.actual_angles()[0]
+            path = plan.angles.copy()
+            path[:, 0] = rest[0]
+            plan = replace(plan, angles=path)
         self._move(rest)
         st = self._move(plan.angles[0])
         if np.any(np.isin(st[ax], (4, 5))):
