@@ -304,3 +304,15 @@ def test_thumb_touch_keeps_the_base_axis(rig):
     # every target the hand was sent kept axis 0 (fingers 0 and 2) where it was
     sent = [c for c in r.hand_emulator.received if c.startswith("p=")]
     assert sent and all(float(c[2:].split(",")[0]) == pytest.approx(before, abs=1e-3) for c in sent)
+
+
+def test_log_keeps_finished_touches_when_a_later_one_fails(rig, tmp_path):
+    r, ex = rig
+    if r.hand_transport != "tcp":
+        pytest.skip("one transport is enough here")
+    ex.execute(ex.finger_touch(0, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)))
+    r.tactile_emulator.faults.add("silence")
+    with pytest.raises(HardwareTimeout):
+        ex.execute(ex.finger_touch(2, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)))
+    recs = read_session(tmp_path / "session.jsonl")   # read while the log is still open
+    assert len(recs) == 1 and recs[0].result.hit and recs[0].finger == 0
