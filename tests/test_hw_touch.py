@@ -130,13 +130,24 @@ TRUE = np.eye(4)
 TRUE[:3, 3] = [0.004, -0.003, 0.0]
 
 
-@pytest.fixture(params=["can", "tcp"])
-def rig(request, tmp_path):
+def _rig(transport, tmp_path):
     world = SimWorld(_box(), TRUE, HAND_POSE)
-    r = EmulatedRig(world, hand_transport=request.param, tactile_transport="pty", time_scale=8.0).start()
+    r = EmulatedRig(world, hand_transport=transport, tactile_transport="pty", time_scale=8.0).start()
     hand = r.open_hand(timeout=1.0)
     tactile = r.open_tactile(timeout=1.0)
-    ex = GuardedTouchExecutor(hand, tactile, hand_pose=HAND_POSE, log=tmp_path / "session.jsonl")
+    return r, GuardedTouchExecutor(hand, tactile, hand_pose=HAND_POSE, log=tmp_path / "session.jsonl")
+
+
+@pytest.fixture(params=["can", "tcp"])
+def rig(request, tmp_path):
+    r, ex = _rig(request.param, tmp_path)
+    yield r, ex
+    r.close()
+
+
+@pytest.fixture
+def can_rig(tmp_path):
+    r, ex = _rig("can", tmp_path)
     yield r, ex
     r.close()
 
@@ -263,13 +274,11 @@ def test_flange_frame_straight_finger_length():
     np.testing.assert_allclose(T[:3, :3] @ [1, 0, 0], [0, -1, 0], atol=1e-12)
 
 
-def test_hand_touch_through_the_planners_world_interface(rig):
+def test_hand_touch_through_the_planners_world_interface(can_rig):
     from touchloc.hardware import HandWorld
     from touchloc.planners import HandTouch
 
-    r, ex = rig
-    if r.hand_transport != "can":
-        pytest.skip("one transport is enough here")
+    r, ex = can_rig
     action = HandTouch((ex.finger_touch(0, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)),
                         ex.finger_touch(2, math.pi / 2, (-0.03, 0.112), (0.04, 0.112))))
     results = HandWorld(ex).execute(action)
@@ -295,10 +304,8 @@ def test_velocity_mode_touch(tmp_path):
         assert not y.hit and y.travel == pytest.approx(0.025)
 
 
-def test_thumb_touch_keeps_the_base_axis(rig):
-    r, ex = rig
-    if r.hand_transport != "can":
-        pytest.skip("one transport is enough here")
+def test_thumb_touch_keeps_the_base_axis(can_rig):
+    r, ex = can_rig
     before = float(r.sim.angles[0])
     ex.execute(ex.finger_touch(1, 0.0, (-0.03, 0.112), (0.04, 0.112)))
     # every target the hand was sent kept axis 0 (fingers 0 and 2) where it was
@@ -306,10 +313,8 @@ def test_thumb_touch_keeps_the_base_axis(rig):
     assert sent and all(float(c[2:].split(",")[0]) == pytest.approx(before, abs=1e-3) for c in sent)
 
 
-def test_log_keeps_finished_touches_when_a_later_one_fails(rig, tmp_path):
-    r, ex = rig
-    if r.hand_transport != "tcp":
-        pytest.skip("one transport is enough here")
+def test_log_keeps_finished_touches_when_a_later_one_fails(can_rig, tmp_path):
+    r, ex = can_rig
     ex.execute(ex.finger_touch(0, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)))
     r.tactile_emulator.faults.add("silence")
     with pytest.raises(HardwareTimeout):
