@@ -118,3 +118,25 @@ def test_bad_configuration_is_rejected():
         TactileScanner(config={"pitch": 0.006})
     with pytest.raises(ValidationError, match="objects"):
         simulate_dataset({}, 2)
+
+
+def test_open_real_mesh_mug_shows_its_rim_first():
+    """The bundled mug (two parts, open handle): first contact is the rim, a ring."""
+    from touchloc.data import load_object
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mug = load_object("mug")
+    scan = TactileScanner(PadConfig(n_frames=30, noise=0.0, gain_jitter=0.0)).scan(mug, rng=0)
+    assert np.all(np.diff(scan.phase) >= 0)  # approach, tilt, roll-around in order
+    app = np.flatnonzero(scan.phase == 0)
+    F = scan.frames[app[-1]] > 0
+    assert F.sum() >= 20
+    # the opening of the cup: blank texels with loaded texels on both sides in their row
+    # and in their column (a flat top would leave none)
+    left = np.maximum.accumulate(F, axis=1)
+    right = np.maximum.accumulate(F[:, ::-1], axis=1)[:, ::-1]
+    up = np.maximum.accumulate(F, axis=0)
+    down = np.maximum.accumulate(F[::-1], axis=0)[::-1]
+    enclosed = ~F & left & right & up & down
+    assert enclosed.sum() >= 16
