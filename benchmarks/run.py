@@ -87,7 +87,7 @@ def _existing_sections(path: Path) -> dict:
         if line.startswith("<!-- bench:"):
             if key:
                 out[key] = "".join(buf)
-            key, buf = line.split(":", 1)[1].split("-->")[0].strip(), []
+            key, buf = line.split(":", 1)[1].split("-->")[0].strip(), [line]
         elif key:
             buf.append(line)
     if key:

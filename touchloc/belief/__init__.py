@@ -7,6 +7,7 @@ Static estimators have ``localize(contacts, region) -> ParticleBelief``; filters
 from ._common import DegenerateBeliefWarning
 from .annealed import AnnealedParticleFilter, ManifoldParticleFilter
 from .histogram import HistogramFilter
+from .identify import identify, log_evidence
 from .mcmc import MCMC
 from .metrics import add, add_s, pose_errors
 from .particle_filter import ParticleFilter
@@ -17,5 +18,5 @@ from .scaling_series import ScaleStep, ScalingSeries
 __all__ = [
     "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
     "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
-    "ManifoldParticleFilter", "MCMC", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
+    "ManifoldParticleFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
 ]

@@ -52,10 +52,10 @@ class ScalingSeries:
         Floor on the particle count of the first cover of the region.
     max_particles : int
         Cap on the particles of one scale (bounds time when the belief is very spread).
-    prune : {"threshold", "resample"}
-        The Prune step of Alg. 1: keep particles whose annealed weight is at least
-        ``prune_ratio`` times the best ("threshold"), or the distinct particles of a
-        weighted resampling ("resample").
+    prune : {"resample", "threshold"}
+        The Prune step of Alg. 1: the distinct particles of a weighted resampling
+        ("resample", default), or every particle whose annealed weight is at least
+        ``prune_ratio`` times the best ("threshold").
     prune_ratio : float
     anneal : {"alg1", "contacts"} or float
         Temperature schedule tau = g (delta / delta*)^2, floored at 1 during the series;
@@ -74,7 +74,7 @@ class ScalingSeries:
 
     def __init__(self, model, *, delta_final: float | None = None, refine_to: float | str | None = None,
                  m_per_delta: int = 6,
-                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
+                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "resample",
                  prune_ratio: float = 0.01, anneal: str | float = "alg1", dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
@@ -176,10 +176,12 @@ class ScalingSeries:
             n0 = max(self.n_initial, int(self.m * 2))
             X = region.sample(n0, rng=self.rng)
             first = True
+            volume = region.volume()
         else:
             X = np.asarray(centers, dtype=float)
             delta0 = float(delta0)
             first = False
+            volume = np.nan
         zoom = 2.0 ** (-1.0 / dim)
         n_anneal = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
         n_refine = 0
@@ -201,7 +203,7 @@ class ScalingSeries:
             if first:
                 first = False  # the initial uniform draw is the cover of V0
             else:
-                X, _ = self._even_density_cover(region, X, delta, new_delta)
+                X, volume = self._even_density_cover(region, X, delta, new_delta)
             ll = finite_loglik(self.model.log_likelihood(X, contacts, temperature=tau))
             lw = ll.copy()
             if last and log_prior is not None:
@@ -209,7 +211,10 @@ class ScalingSeries:
             belief = ParticleBelief(X, lw, region=region, resolution=new_delta)
             n_part = len(X)
             if last:
-                belief.info.update(delta_final=d_end, n_scales=n_scales)
+                # the final cover's volume (metric units): each particle stands for volume / N,
+                # which turns the weights into an evidence estimate (see belief.identify)
+                belief.info.update(delta_final=d_end, n_scales=n_scales, cover_volume=float(volume),
+                                   log_likelihood=ll)
                 flag_degenerate(belief, float(ll.max()), contacts)
                 yield ScaleStep(n, new_delta, tau, n_part, n_part, belief, time.perf_counter() - t0)
                 return
