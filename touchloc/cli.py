@@ -21,7 +21,6 @@ COMMAND_MODULES = [
     "touchloc.dnf._cli",
     "touchloc.hardware._cli",
     "touchloc.recognition._cli",
-    "touchloc._bench_cli",
 ]
 
 
