@@ -177,3 +177,21 @@ def test_outputs_and_cli(tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 10_000
     html = (tmp_path / "t.html").read_text()
     assert "<canvas" in html and '"touches": [' in html and "ADD-S" in html
+
+
+def test_a_belief_estimator_can_drive_the_loop(box, model):
+    """EstimatorUpdater: re-localise with Scaling Series from all contacts and free space."""
+    try:
+        from touchloc.belief import ScalingSeries  # noqa: F401
+    except ImportError:  # pragma: no cover - the estimator is optional
+        pytest.skip("touchloc.belief.ScalingSeries is not available")
+    from touchloc.planners.update import EstimatorUpdater
+
+    reg = _x_region(box)
+    up = EstimatorUpdater(model, reg, n_prior=300, rng=0)
+    world = SimulatedWorld(box, _at_x(-0.03)[0], noise_pos=0.0, noise_nor=0.0, rng=0)
+    b = up.update(world.execute(GuardedTouch((0.02, 0, 0.1), (0, 0, -1), 0.2)))   # a miss first
+    assert np.average(b.poses[:, 0, 3] < -0.005, weights=b.weights) > 0.97
+    b = up.update(world.execute(GuardedTouch((0.3, 0, 0), (-1, 0, 0), 0.5)))     # then a contact
+    x = np.average(b.poses[:, 0, 3], weights=b.weights)
+    assert x == pytest.approx(-0.03, abs=0.002)

@@ -20,7 +20,7 @@ from ..models import Contacts, MeasurementModel, ProximityModel
 from .actions import TouchResult
 from .simulate import simulate
 
-__all__ = ["TouchLikelihood", "TouchFilter"]
+__all__ = ["TouchLikelihood", "TouchFilter", "EstimatorUpdater"]
 
 
 class TouchLikelihood(MeasurementModel):
@@ -45,10 +45,12 @@ class TouchLikelihood(MeasurementModel):
     margin : float
         Shift (in sigma_free) so that the true surface, where s_j = travel_j, is not
         penalised.
+    use_contacts : bool
+        False: the free-space term only (to add to a contact model with ``+``).
     """
 
     def __init__(self, model: ProximityModel, results, *, sigma_free: float | None = None, eps: float = 1e-3,
-                 margin: float = 1.0):
+                 margin: float = 1.0, use_contacts: bool = True):
         if not isinstance(model, MeasurementModel) or getattr(model, "obj", None) is None:
             raise ValidationError(f"model must be a measurement model of an object, got {type(model).__name__}")
         results = list(results)
@@ -59,7 +61,7 @@ class TouchLikelihood(MeasurementModel):
         self.sigma_free = float(sigma_free) if sigma_free else 2.0 * sp
         self.eps, self.margin = float(eps), float(margin)
         hits = [r.contact for r in results if r.contact is not None]
-        if hits:
+        if hits and use_contacts:
             pts = np.concatenate([c.points for c in hits])
             nrm = None if any(c.normals is None for c in hits) else np.concatenate([c.normals for c in hits])
             self.contacts = Contacts(pts, nrm)
@@ -216,3 +218,61 @@ class TouchFilter:
         self.info["stages"].append(stages)
         self.info["accept"].append(float(np.mean(acc)) if acc else float("nan"))
         return self._belief
+
+
+class EstimatorUpdater:
+    """Use a static estimator of touchloc.belief (e.g. ScalingSeries) in the active loop.
+
+    Each update re-localises from scratch with every contact so far and the free space of
+    every touch: ``make_estimator(model + free_space).localize(contacts, region)``. Before
+    the first contact, the belief is the region's prior sampled with ``n_prior`` particles
+    and weighted by the free space of the misses.
+
+    Parameters
+    ----------
+    model : ProximityModel
+    region : PoseRegion
+    make_estimator : callable
+        ``make_estimator(model) -> estimator`` with ``localize(contacts, region)``;
+        default ``ScalingSeries(model, rng=rng)``.
+    n_prior : int
+    rng : None, int or Generator
+    """
+
+    def __init__(self, model, region, make_estimator=None, *, n_prior: int = 2000, rng=None, **likelihood_kwargs):
+        from ..belief import ParticleBelief
+
+        self.model, self.obj = model, model.obj
+        self.region = region if region.rho is not None else region.with_rho(model.obj.radius)
+        self.rng = as_rng(rng)
+        if make_estimator is None:
+            from ..belief import ScalingSeries
+
+            def make_estimator(m):
+                return ScalingSeries(m, rng=self.rng, progress=False)
+        self.make_estimator = make_estimator
+        self.n_prior, self.kw = int(n_prior), likelihood_kwargs
+        self.results: list = []
+        self._belief = ParticleBelief(self.region.sample(self.n_prior, rng=self.rng), region=self.region)
+
+    @property
+    def belief(self):
+        return self._belief
+
+    def update(self, results):
+        from ..belief import ParticleBelief
+
+        if isinstance(results, TouchResult):
+            results = [results]
+        self.results = self.results + list(results)
+        free = TouchLikelihood(self.model, self.results, use_contacts=False, **self.kw)
+        hits = [r.contact for r in self.results if r.contact is not None]
+        if not hits:
+            P = self.region.sample(self.n_prior, rng=self.rng)
+            self._belief = ParticleBelief(P, free.log_likelihood(P), region=self.region)
+            return self._belief
+        pts = np.concatenate([c.points for c in hits])
+        nrm = None if any(c.normals is None for c in hits) else np.concatenate([c.normals for c in hits])
+        b = self.make_estimator(self.model + free).localize(Contacts(pts, nrm), self.region)
+        self._belief = b
+        return b
