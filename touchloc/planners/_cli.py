@@ -38,7 +38,7 @@ def make_planner(name, model, beta=0.0):
     if name == "kl":
         return OneStepPlanner(model, utility="kl", beta=beta)
     if name == "two-step":
-        return TwoStepPlanner(model, beta=beta, branch=4, max_particles=500)
+        return TwoStepPlanner(model, beta=beta, branch=3)
     return RandomPlanner(model)
 
 

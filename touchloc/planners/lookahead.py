@@ -323,16 +323,21 @@ class TwoStepPlanner(OneStepPlanner):
         First actions expanded (pruned ones score ``-inf``; their one-step score is in
         ``plan.details["one_step"]``).
     n_observations : int
-        Canonical observations per action at both levels (default 3).
+        Canonical observations per first action (default 6).
+    n_observations_second : int
+        Canonical observations per second action (default 3).
     **kwargs
         As :class:`OneStepPlanner`.
     """
 
     name = "two-step"
 
-    def __init__(self, model, *, branch: int | None = 6, n_observations: int = 3, progress: bool = False,
-                 **kwargs):
+    def __init__(self, model, *, branch: int | None = 4, n_observations: int = 6, n_observations_second: int = 3,
+                 progress: bool = False, **kwargs):
         super().__init__(model, n_observations=n_observations, **kwargs)
+        if int(n_observations_second) < 1:
+            raise ValidationError(f"n_observations_second must be >= 1, got {n_observations_second}")
+        self.n_observations_second = int(n_observations_second)
         if branch is not None and int(branch) < 1:
             raise ValidationError(f"branch must be >= 1 or None, got {branch}")
         self.branch = None if branch is None else int(branch)
@@ -353,7 +358,7 @@ class TwoStepPlanner(OneStepPlanner):
             for k in range(W.shape[1]):
                 if W[c, k] <= 0:
                     continue
-                W2, _, v2, c2 = _one_step(self, ctx, post[c, k], all_c, self.n_observations, rng)
+                W2, _, v2, c2 = _one_step(self, ctx, post[c, k], all_c, self.n_observations_second, rng)
                 best2 = float(np.max((W2 * (v2 - self.beta * c2)).sum(axis=1)))
                 total += W[c, k] * (best2 - self.beta * cost[c, k])
             scores[c] = total
