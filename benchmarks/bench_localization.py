@@ -83,7 +83,8 @@ def run(quick: bool = False) -> str:
         model = ProximityModel(obj, SIGMA_POS, SIGMA_NOR)
         seeds = range(2000, 2000 + n_side)
         variants = {
-            "Scaling Series (M=6, Alg. 1)": lambda s: (lambda c: ScalingSeries(model, rng=s).localize(c, cube)),
+            "Scaling Series (defaults)": lambda s: (lambda c: ScalingSeries(model, rng=s).localize(c, cube)),
+            "Scaling Series, prune by resampling": lambda s: (lambda c: ScalingSeries(model, prune="resample", rng=s).localize(c, cube)),
             "Scaling Series M=12": lambda s: (lambda c: ScalingSeries(model, m_per_delta=12, rng=s).localize(c, cube)),
             "Scaling Series, anneal gain 2": lambda s: (lambda c: ScalingSeries(model, anneal=2.0, rng=s).localize(c, cube)),
             "Scaling Series + MCMC": lambda s: (lambda c: MCMC(model, n_walkers=24, n_steps=100, burn=100, rng=s).refine(
@@ -114,8 +115,8 @@ def run(quick: bool = False) -> str:
         "over the surface with 2 mm position and 5 deg normal noise; ProximityModel(sigma_pos=2 mm, "
         "sigma_nor=0.1). ADD-S of the MAP pose. 'truth in 90 % region': the true pose lies within "
         "the belief's resolution (Scaling Series: its final delta) of the particles holding 90 % of "
-        "the weight. Scaling Series defaults: M = 6, delta* = 2 sigma_pos, resampling prune, "
-        "tau = (delta/delta*)^2.",
+        "the weight. Scaling Series defaults: M = 6, delta* = 2 sigma_pos, prune by threshold "
+        "(weights >= 1e-3 of the best), tau = (delta/delta*)^2.",
         table(HEAD, rows),
         "6-DOF alternatives, 30 contacts (same setting):",
         table(HEAD, side),

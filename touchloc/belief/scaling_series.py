@@ -52,10 +52,11 @@ class ScalingSeries:
         Floor on the particle count of the first cover of the region.
     max_particles : int
         Cap on the particles of one scale (bounds time when the belief is very spread).
-    prune : {"resample", "threshold"}
-        The Prune step of Alg. 1: the distinct particles of a weighted resampling
-        ("resample", default), or every particle whose annealed weight is at least
-        ``prune_ratio`` times the best ("threshold").
+    prune : {"threshold", "resample"}
+        The Prune step of Alg. 1: every particle whose annealed weight is at least
+        ``prune_ratio`` times the best ("threshold", default), or the distinct particles
+        of a weighted resampling ("resample"; with few particles it keeps so few that
+        true modes are lost more often, see docs/benchmarks.md).
     prune_ratio : float
     anneal : {"alg1", "contacts"} or float
         Temperature schedule tau = g (delta / delta*)^2, floored at 1 during the series;
@@ -74,8 +75,8 @@ class ScalingSeries:
 
     def __init__(self, model, *, delta_final: float | None = None, refine_to: float | str | None = None,
                  m_per_delta: int = 6,
-                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "resample",
-                 prune_ratio: float = 0.01, anneal: str | float = "alg1", dynamics=None,
+                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
+                 prune_ratio: float = 1e-3, anneal: str | float = "alg1", dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
         sp = getattr(model, "sigma_pos", None)
