@@ -1,6 +1,6 @@
 """``touchloc demo``: active touch localisation of a bundled mesh on a simulated table.
 
-A mesh stands at a hidden pose (x, y in a 100 mm square, any yaw). The one-step entropy
+The mug stands at a hidden pose (x, y in a 100 mm square, any yaw). The one-step entropy
 planner picks each guarded touch, the simulated world executes it, a particle filter
 folds in the contact or the free space of a miss, until the belief is confident. Prints
 one line per touch and writes out/demo.png and out/demo.html.
@@ -13,7 +13,7 @@ def register(sub):
     from .planners._cli import add_arguments
 
     p = sub.add_parser("demo", help="active touch localisation of a bundled mesh (writes out/demo.png, .html)")
-    add_arguments(p, mesh="cereal", max_touches=15, particles=2000)
+    add_arguments(p, mesh="mug", max_touches=15, particles=2000, confidence=1.5)
     p.set_defaults(func=run, name="demo")
 
 

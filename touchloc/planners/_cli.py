@@ -8,7 +8,7 @@ from pathlib import Path
 PLANNERS = ("one-step", "two-step", "random", "kl")
 
 
-def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000):
+def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidence=3.0):
     p.add_argument("--mesh", default=mesh, help=f"bundled mesh name (default: {mesh})")
     p.add_argument("--setting", default="planar", choices=["planar", "6dof"],
                    help="planar: x, y, yaw in a 100 mm square; 6dof: 60 mm cube, any rotation")
@@ -18,7 +18,8 @@ def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000):
     p.add_argument("--hands", type=int, default=0, help="also offer this many three-finger hand closings")
     p.add_argument("--particles", type=int, default=particles)
     p.add_argument("--max-touches", type=int, default=max_touches)
-    p.add_argument("--confidence", type=float, default=3.0, help="stop when the expected ADD-S < this (mm)")
+    p.add_argument("--confidence", type=float, default=confidence,
+                   help=f"stop when the belief's expected ADD-S is below this (mm; default {confidence})")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out", help="directory for the plot and the HTML view ('' for none)")
     p.add_argument("--name", default="active", help="file stem of the outputs")
