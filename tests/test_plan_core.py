@@ -165,3 +165,28 @@ def test_errors_say_what_was_wrong(box, x_belief):
     with pytest.raises(ValidationError, match="MeshObject"):
         OneStepPlanner(object())
     assert issubclass(PlanningError, Exception)
+
+
+def test_plan_table_and_ranking(box, x_belief):
+    from touchloc.planners import RandomPlanner
+
+    cands = _axis_touches()
+    plan = OneStepPlanner(box).plan(x_belief, cands, rng=0)
+    rank = plan.ranking(2)
+    assert rank[0] == (1, plan.scores[1]) and rank[0][1] >= rank[1][1]
+    text = plan.table(3)
+    assert len(text.splitlines()) == 4 and "+x" in text.splitlines()[1]
+    rnd = RandomPlanner().plan(x_belief, cands, rng=0)
+    assert rnd.action in cands and "nan" in rnd.table(1)
+
+
+def test_travel_time_cost():
+    t = GuardedTouch((0.1, 0, 0), (-1, 0, 0), 0.2)
+    hand = HandTouch((t, GuardedTouch((-0.1, 0, 0), (1, 0, 0), 0.2)))
+    c = TravelTime(speed=0.1, overhead=1.0)
+    assert c(t, np.array([[0.05]]))[0] == pytest.approx(1.0 + 2 * 0.05 / 0.1)
+    # fingers move at once: the slowest one counts
+    assert c(hand, np.array([0.02, 0.08])) == pytest.approx(1.0 + 2 * 0.08 / 0.1)
+    assert TravelDistance()(hand, np.array([0.02, 0.08])) == pytest.approx(0.1)
+    home = TravelTime(speed=0.1, overhead=0.0, home=(0.1, 0.2, 0), approach_speed=0.5)
+    assert home(t, np.array([0.0])) == pytest.approx(2 * 0.2 / 0.5)

@@ -7,12 +7,20 @@
 
 from .actions import (ActionCost, GuardedTouch, HandTouch, TouchResult, TravelDistance, TravelTime, as_cost,
                       fingers_of)
+from .candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
 from .lookahead import OneStepPlanner, Plan, RandomPlanner, TwoStepPlanner
+from .loop import ActiveResult, SimulatedWorld, Step, active_localization
+from .metrics import add_s, best_pose, expected_add_s
+from .scenarios import Scenario, make_scenario
 from .simulate import Outcomes, execute, simulate
+from .update import EstimatorUpdater, TouchFilter, TouchLikelihood
 from .utilities import KLDivergence, NegEntropy, TaskSuccess, Utility
 
 __all__ = [
     "GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "as_cost",
     "fingers_of", "Outcomes", "simulate", "execute", "Plan", "OneStepPlanner", "TwoStepPlanner",
-    "RandomPlanner", "Utility", "NegEntropy", "KLDivergence", "TaskSuccess",
+    "RandomPlanner", "Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "CandidateGenerator",
+    "world_pool", "relative_pool", "hand_pool", "active_localization", "SimulatedWorld", "ActiveResult", "Step",
+    "add_s", "best_pose", "expected_add_s", "Scenario", "make_scenario", "TouchFilter", "TouchLikelihood",
+    "EstimatorUpdater",
 ]

@@ -78,8 +78,9 @@ class Plan:
     def table(self, k: int = 10) -> str:
         """A small text table of the k best candidates."""
         lines = [f"{'rank':>4} {'idx':>4} {'score':>9} {'value':>9} {'cost':>8} {'p_hit':>6}  name"]
+        nan = np.full(len(self.scores), np.nan)
+        d = {key: self.details.get(key, nan) for key in ("value", "cost", "p_hit")}
         for r, (i, s) in enumerate(self.ranking(k)):
-            d = self.details
             name = getattr(self.candidates[i], "name", "")
             lines.append(f"{r:>4} {i:>4} {s:9.3f} {d['value'][i]:9.3f} {d['cost'][i]:8.3f} "
                          f"{d['p_hit'][i]:6.2f}  {name}")
