@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 
 import numpy as np
@@ -82,10 +83,15 @@ class MCMC:
         sampler.run_mcmc(v0, self.burn + self.n_steps, progress=self.progress)
         chain = sampler.get_chain(discard=self.burn, thin=self.thin, flat=True)
         X = region.from_local(chain, ref)
+        logger = logging.getLogger("emcee.autocorr")
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # a short chain's warning: the numbers go to info
         try:
             tau = sampler.get_autocorr_time(discard=self.burn, quiet=True)
         except Exception:  # emcee raises when the chain is far too short
             tau = np.full(dim, np.nan)
+        finally:
+            logger.setLevel(level)
         b = ParticleBelief(X, None, region=region, resolution=start.resolution)
         b.info.update(acceptance=float(np.mean(sampler.acceptance_fraction)), autocorr=np.asarray(tau),
                       seconds=time.perf_counter() - t0, evaluations=self.n_walkers * (self.burn + self.n_steps))
