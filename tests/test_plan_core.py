@@ -190,3 +190,12 @@ def test_travel_time_cost():
     assert TravelDistance()(hand, np.array([0.02, 0.08])) == pytest.approx(0.1)
     home = TravelTime(speed=0.1, overhead=0.0, home=(0.1, 0.2, 0), approach_speed=0.5)
     assert home(t, np.array([0.0])) == pytest.approx(2 * 0.2 / 0.5)
+
+
+def test_two_step_subtracts_first_costs(box, x_belief):
+    """Eq. 42.16: with a large beta the two-step planner also takes the cheap touch."""
+    far = GuardedTouch((1.0, 0, 0), (-1, 0, 0), 1.5, name="far +x")
+    near = GuardedTouch((0, 0.05, 0), (0, -1, 0), 0.1, name="near +y")
+    assert TwoStepPlanner(box, branch=None).plan(x_belief, [far, near], rng=0).action is far
+    plan = TwoStepPlanner(box, branch=None, beta=20.0).plan(x_belief, [far, near], rng=0)
+    assert plan.action is near
