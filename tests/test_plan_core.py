@@ -9,8 +9,8 @@ import trimesh
 from touchloc.belief import ParticleBelief, PoseRegion
 from touchloc.errors import PlanningError, ValidationError
 from touchloc.geometry import make_poses
-from touchloc.models import MeshObject, ProximityModel
-from touchloc.planners import (GuardedTouch, HandTouch, KLDivergence, OneStepPlanner, TaskSuccess,
+from touchloc.models import MeshObject
+from touchloc.planners import (GuardedTouch, HandTouch, OneStepPlanner, TaskSuccess,
                                TravelDistance, TravelTime, TwoStepPlanner, simulate)
 from touchloc.planners.utilities import batched_entropy
 

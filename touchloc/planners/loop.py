@@ -9,7 +9,7 @@ import numpy as np
 
 from .._util import as_rng, progress
 from ..errors import ValidationError
-from .actions import TouchResult, fingers_of
+from .actions import TouchResult
 from .metrics import add_s, best_pose, expected_add_s
 from .simulate import execute
 from .update import TouchFilter
