@@ -199,3 +199,23 @@ def test_two_step_subtracts_first_costs(box, x_belief):
     assert TwoStepPlanner(box, branch=None).plan(x_belief, [far, near], rng=0).action is far
     plan = TwoStepPlanner(box, branch=None, beta=20.0).plan(x_belief, [far, near], rng=0)
     assert plan.action is near
+
+
+def test_touches_that_start_inside_the_object_are_infeasible(box, x_belief):
+    # starts inside every box centred within 3 cm of the origin: 75 % of the belief
+    inside = GuardedTouch((0.0, 0, 0), (-1, 0, 0), 0.5, name="from the centre")
+    cands = _axis_touches() + [inside]
+    plan = OneStepPlanner(box).plan(x_belief, cands, rng=0)
+    assert plan.details["p_collision"][4] == pytest.approx(0.75, abs=0.06)
+    assert plan.details["p_collision"][1] == 0.0
+    assert plan.scores[4] == -np.inf and plan.action.name == "+x"
+    # inside the boxes centred at x > 0.01 only (3/8 of the belief)
+    partly = GuardedTouch((0.04, 0, 0), (-1, 0, 0), 0.5)
+    p = OneStepPlanner(box, max_collision=0.5).plan(x_belief, [partly, cands[0]], rng=0)
+    assert p.details["p_collision"][0] == pytest.approx(0.375, abs=0.06) and np.isfinite(p.scores[0])
+    assert OneStepPlanner(box).plan(x_belief, [partly, cands[0]], rng=0).scores[0] == -np.inf
+    # when every candidate collides, the least likely to are kept
+    p = OneStepPlanner(box).plan(x_belief, [inside, partly], rng=0)
+    assert p.action is partly
+    two = TwoStepPlanner(box, branch=None).plan(x_belief, cands, rng=0)
+    assert two.scores[4] == -np.inf and two.action.name == "+x"

@@ -163,8 +163,9 @@ def hand_pool(pose, obj, n: int = 20, *, n_fingers: int = 3, rng=None, standoff:
 class CandidateGenerator:
     """Candidates for each step of active localisation: ``gen(belief, rng) -> list``.
 
-    A fixed world pool (drawn once) plus a fresh pool relative to the MAP pose at each
-    step, and optionally closing hands.
+    A fixed world pool (drawn once) plus a fresh pool relative to the best pose at each
+    step (starting ``standoff`` plus twice the belief's translation spread from the
+    surface), and optionally closing hands.
 
     Parameters
     ----------
@@ -176,12 +177,13 @@ class CandidateGenerator:
     """
 
     def __init__(self, region, obj, *, n_world: int = 60, n_relative: int = 40, n_hands: int = 0,
-                 n_fingers: int = 3, seed: int = 0, probe_radius: float = 0.0):
+                 n_fingers: int = 3, seed: int = 0, probe_radius: float = 0.0, standoff: float = 0.03):
         self.region, self.obj = region, obj
         self.planar = region.rotation == "yaw" and region.half_extent[2] == 0
         self.world = world_pool(region, obj, n_world, rng=seed, probe_radius=probe_radius) if n_world else []
         self.n_relative, self.n_hands, self.n_fingers = int(n_relative), int(n_hands), int(n_fingers)
         self.probe_radius = probe_radius
+        self.standoff = float(standoff)
 
     def __call__(self, belief, rng=None) -> list:
         rng = as_rng(rng)
@@ -190,7 +192,14 @@ class CandidateGenerator:
 
         T = best_pose(belief)
         if self.n_relative:
+            # start further out while the estimate is uncertain, so that the touch begins
+            # in free space for most of the belief (the planner drops those that do not)
+            t = belief.poses[:, :3, 3]
+            w = belief.weights
+            spread = float(np.sqrt(w @ np.sum((t - w @ t) ** 2, axis=1)))
+            standoff = self.standoff + 2.0 * spread
             out += relative_pool(T, self.obj, self.n_relative, rng=rng, probe_radius=self.probe_radius,
+                                 standoff=standoff, depth=self.obj.radius + 2.0 * spread,
                                  min_normal_z=-0.2 if self.planar else None)
         if self.n_hands:
             out += hand_pool(T, self.obj, self.n_hands, n_fingers=self.n_fingers, rng=rng, planar=self.planar,

@@ -57,7 +57,8 @@ class Plan:
     details : dict of (C,) arrays
         ``value`` (expected utility of the simulated beliefs, before costs),
         ``cost`` (expected cost), ``p_hit`` (probability that the first finger
-        touches), ``n_observations`` (canonical observations used).
+        touches), ``p_collision`` (probability that a finger starts inside the
+        object), ``n_observations`` (canonical observations used).
     info : dict
         Timings (s) and sizes.
     """
@@ -240,13 +241,18 @@ class OneStepPlanner:
         Observation noise of contact normals (unit-vector difference).
     eps : float
         Probability of a hit where a miss was expected, or vice versa.
+    max_collision : float
+        Candidates that start inside the object with more than this probability under
+        the belief are infeasible (score ``-inf``): a guarded touch must begin in free
+        space, or the hand knocks the object on its way to the start. If every
+        candidate is infeasible, the least likely to collide are kept.
     """
 
     name = "one-step"
 
     def __init__(self, model, *, utility="entropy", beta: float = 0.0, cost=None, n_observations: int = 6,
                  n_representatives: int = 24, max_particles: int = 1000, sigma_travel: float | None = None,
-                 sigma_normal: float = 0.3, eps: float = 0.01):
+                 sigma_normal: float = 0.3, eps: float = 0.01, max_collision: float = 0.02):
         obj = model if isinstance(model, MeshObject) else getattr(model, "obj", None)
         if not isinstance(obj, MeshObject):
             raise ValidationError(f"model must be a measurement model with a MeshObject (.obj) or a MeshObject, "
@@ -268,6 +274,9 @@ class OneStepPlanner:
         if not (np.isfinite(sigma_travel) and sigma_travel > 0 and np.isfinite(sigma_normal) and sigma_normal > 0):
             raise ValidationError("sigma_travel and sigma_normal must be > 0")
         self.sigma_travel, self.sigma_normal, self.eps = float(sigma_travel), float(sigma_normal), float(eps)
+        if not 0 <= max_collision <= 1:
+            raise ValidationError(f"max_collision must be in [0, 1], got {max_collision}")
+        self.max_collision = float(max_collision)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(utility={self.utility.name!r}, beta={self.beta})"
@@ -276,7 +285,20 @@ class OneStepPlanner:
         f0 = ctx.starts
         p_hit = ctx.w @ ctx.out.hit[:, f0]
         return {"value": (W * value).sum(axis=1), "cost": (W * cost).sum(axis=1), "p_hit": p_hit,
-                "n_observations": np.count_nonzero(W > 0, axis=1)}
+                "p_collision": self._p_collision(ctx), "n_observations": np.count_nonzero(W > 0, axis=1)}
+
+    def _p_collision(self, ctx) -> np.ndarray:
+        """(C,) belief mass for which some finger of each candidate starts inside the object."""
+        inside = ctx.out.start_inside.astype(float)
+        if len(ctx.starts) != inside.shape[1]:
+            inside = np.maximum.reduceat(inside, ctx.starts, axis=1)
+        return ctx.w @ inside
+
+    def _feasible(self, ctx) -> np.ndarray:
+        """(C,) bool: candidates allowed by ``max_collision`` (the least bad if none is)."""
+        pc = self._p_collision(ctx)
+        ok = pc <= self.max_collision
+        return ok if ok.any() else pc <= pc.min() + 1e-12
 
     def plan(self, belief, candidates, *, rng=None) -> Plan:
         """Score every candidate and choose the best.
@@ -298,6 +320,7 @@ class OneStepPlanner:
         C = len(ctx.candidates)
         W, post, value, cost = _one_step(self, ctx, ctx.w, np.arange(C), self.n_observations, rng)
         scores = (W * (value - self.beta * cost)).sum(axis=1)
+        scores = np.where(self._feasible(ctx), scores, -np.inf)
         return self._finish(ctx, scores, self._details(ctx, W, value, cost, self.n_observations), t0)
 
     def _finish(self, ctx, scores, details, t0, **info):
@@ -351,15 +374,17 @@ class TwoStepPlanner(OneStepPlanner):
         C = len(ctx.candidates)
         all_c = np.arange(C)
         W, post, value, cost = _one_step(self, ctx, ctx.w, all_c, self.n_observations, rng)
-        one = (W * (value - self.beta * cost)).sum(axis=1)
-        expand = all_c if self.branch is None else np.argsort(-one, kind="stable")[: self.branch]
+        feasible = self._feasible(ctx)
+        one = np.where(feasible, (W * (value - self.beta * cost)).sum(axis=1), -np.inf)
+        cand = np.flatnonzero(feasible)
+        expand = cand if self.branch is None else cand[np.argsort(-one[cand], kind="stable")[: self.branch]]
         scores = np.full(C, -np.inf)
         for c in progress(expand, desc="two-step", enabled=self.progress):
             total = 0.0
             for k in range(W.shape[1]):
                 if W[c, k] <= 0:
                     continue
-                W2, _, v2, c2 = _one_step(self, ctx, post[c, k], all_c, self.n_observations_second, rng)
+                W2, _, v2, c2 = _one_step(self, ctx, post[c, k], cand, self.n_observations_second, rng)
                 best2 = float(np.max((W2 * (v2 - self.beta * c2)).sum(axis=1)))
                 total += W[c, k] * (best2 - self.beta * cost[c, k])
             scores[c] = total

@@ -60,6 +60,9 @@ class Outcomes:
     fingers : list of GuardedTouch (F)
     owner : (F,) int
         Action index of each finger.
+    start_inside : (P, F) bool
+        The finger would start inside the object (a collision before the touch; its
+        outcome is reported as a contact at travel 0 against the motion).
     """
 
     travel: np.ndarray
@@ -68,6 +71,7 @@ class Outcomes:
     normals: np.ndarray
     fingers: list
     owner: np.ndarray
+    start_inside: np.ndarray = None
 
     @property
     def n_actions(self) -> int:
@@ -162,7 +166,7 @@ def simulate(obj: MeshObject, poses, actions) -> Outcomes:
     ray_hit = np.where((rad[None, :] > 0)[:, :, None], ray_hit, O[None] + travel[:, :, None] * D[None])
     points = np.where(hit[:, :, None], ray_hit, np.nan)
     normals = np.where(hit[:, :, None], normals, np.nan)
-    return Outcomes(travel, hit, points, normals, list(fingers), owner)
+    return Outcomes(travel, hit, points, normals, list(fingers), owner, inside[:, :F].copy())
 
 
 def execute(obj: MeshObject, true_pose, action, *, noise_pos: float = 0.0, noise_nor: float = 0.0,
