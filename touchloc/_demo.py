@@ -13,7 +13,7 @@ def register(sub):
     from .planners._cli import add_arguments
 
     p = sub.add_parser("demo", help="active touch localisation of a bundled mesh (writes out/demo.png, .html)")
-    add_arguments(p, mesh="mug", max_touches=15, particles=2000, confidence=1.5)
+    add_arguments(p, mesh="mug", max_touches=25, particles=2000, confidence=1.5)
     p.set_defaults(func=run, name="demo")
 
 
