@@ -166,3 +166,18 @@ def test_estimators_reject_bad_inputs(box):
         HistogramFilter(model).initialize(region)
     with pytest.raises(ValidationError, match="initialize"):
         ParticleFilter(model).update(Contacts(np.zeros((1, 3))))
+
+
+def test_particle_filter_takes_free_space_after_a_miss(box):
+    from touchloc.models import FreeSpaceModel
+
+    region = PoseRegion.box((0, 0, 0), (0.05, 0.0, 0.0), np.eye(3))
+    pf = ParticleFilter(ProximityModel(box, 0.002), n_particles=2000, rng=0)
+    pf.initialize(region)
+    # a probe swept along y through x = 0.03 met nothing: the box (half width 0.04 in x)
+    # cannot straddle x = 0.03, so its centre must lie below -0.01 (the region ends at 0.05)
+    miss = FreeSpaceModel(box, [[0.03, -0.3, 0.0]], [[0.03, 0.3, 0.0]], sigma=0.001)
+    b = pf.update(None, model=miss, resample=False)
+    x = b.poses[:, 0, 3]
+    assert np.sum(b.weights[x > -0.006]) < 0.01
+    assert np.sum(b.weights[x < -0.014]) > 0.95

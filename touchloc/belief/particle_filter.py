@@ -81,13 +81,22 @@ class ParticleFilter:
         X = self.dynamics.sample(self.belief.poses, rng=self.rng)
         self.belief = self.belief.with_particles(X, self.belief.log_weights)
 
-    def update(self, contacts, *, resample: bool = True) -> ParticleBelief:
-        """Weight by the likelihood of the contacts; resample and roughen when the ESS drops."""
+    def update(self, contacts, *, model=None, resample: bool = True) -> ParticleBelief:
+        """Weight by the likelihood of the contacts; resample and roughen when the ESS drops.
+
+        ``model`` replaces the filter's model for this update only, e.g.
+        ``proximity + FreeSpaceModel.from_results(obj, results)`` to add the free space a
+        touch swept, or a :class:`~touchloc.models.FreeSpaceModel` alone after a miss
+        (then ``contacts`` may be None).
+        """
         self._require()
-        contacts = check_contacts(contacts)
-        ll = finite_loglik(self.model.log_likelihood(self.belief.poses, contacts))
+        m = self.model if model is None else check_model(model)
+        if contacts is not None or model is None:
+            contacts = check_contacts(contacts)
+        ll = finite_loglik(m.log_likelihood(self.belief.poses, contacts))
         b = self.belief.with_particles(self.belief.poses, self.belief.log_weights + ll)
-        flag_degenerate(b, float(ll[np.argmax(b.log_weights)]), contacts)
+        if contacts is not None:
+            flag_degenerate(b, float(ll[np.argmax(b.log_weights)]), contacts)
         if resample and b.ess() < self.resample_threshold * len(b):
             b = self._resample_move(b)
         self.belief = b
