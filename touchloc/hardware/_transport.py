@@ -6,7 +6,7 @@ already-open pyserial object (``serial.serial_for_url("/dev/ttyUSB0")``,
 wraps either in a :class:`Link` with one small interface: ``write(bytes)``,
 ``read_some(timeout) -> bytes`` (b"" on timeout) and ``discard_input()``.
 
-CAN framing of the SDH-2 (docs: ../shared/protocols/sdh2.md, "CAN framing"): the ASCII
+CAN framing of the SDH-2 (docs: SCHUNK SDHLibrary-C++ 0.0.2.10 and the ROS driver schunk_sdh, "CAN framing"): the ASCII
 byte stream is cut into data frames of at most 8 bytes on the request id (42), answers are
 the concatenated payloads of the frames on the answer id (43); extended, remote and error
 frames are ignored.

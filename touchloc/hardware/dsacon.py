@@ -1,7 +1,7 @@
 """Driver of the DSACON32m tactile controller of the SDH-2: packets, CRC16, frames, RLE.
 
 Packet layout, command ids, payload layouts, error codes and the CRC rule are the
-controller's published protocol as summarised in ../shared/protocols/dsacon32m.md:
+controller's published protocol as summarised in SCHUNK SDHLibrary-C++ 0.0.2.10 (dsa.cpp, crc.cpp) and the ROS driver schunk_sdh:
 
 * packet ``AA AA AA | id u8 | len u16 | payload | CRC16 u16`` (little-endian; the CRC is
   present only when len > 0 and covers id, length and payload);

@@ -2,7 +2,7 @@
 
 All lengths are metres and all angles radians. Facts (link lengths, base positions, the
 closing direction, the palmar normals, the pad indices) are those of the hand's host
-library and robot description, summarised in ../shared/protocols/sdh2_kinematics.md:
+library and robot description, summarised in SCHUNK SDHLibrary-C++ 0.0.2.10 (sdh.cpp, dsa.cpp) and the ROS description schunk_description (sdh.urdf.xacro):
 
 * l1 = 86.5 mm (proximal to distal joint), l2 = 68.5 mm (distal joint to tip);
 * proximal joints at (33, 19.053, 17), (0, -38.105, 17), (-33, 19.053, 17) mm in the hand

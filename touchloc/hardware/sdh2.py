@@ -2,7 +2,7 @@
 
 Protocol facts (commands, replies, units, error codes, limits) are those listed in
 ``docs/hardware.md`` and taken from the hand's published host library (see
-../shared/protocols/sdh2.md). The library speaks radians; the wire speaks degrees.
+SCHUNK SDHLibrary-C++ 0.0.2.10 and the ROS driver schunk_sdh). The library speaks radians; the wire speaks degrees.
 
 Every fault seen while talking to the hand (timeout, malformed reply, firmware error,
 disconnect) makes the driver send ``stop`` (best effort, without waiting for the answer)

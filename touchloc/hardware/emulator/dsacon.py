@@ -1,6 +1,6 @@
 """A DSACON32m emulator that speaks the controller's packet protocol (bytes in, bytes out).
 
-Packets, payload layouts and the CRC follow ../shared/protocols/dsacon32m.md. The pads'
+Packets, payload layouts and the CRC follow SCHUNK SDHLibrary-C++ 0.0.2.10 (dsa.cpp, crc.cpp) and the ROS driver schunk_sdh. The pads'
 texel values come from the shared :class:`SimHand` (pressure where the pads press into
 the simulated mesh), from a user callable, or are zero.
 """

@@ -1,6 +1,6 @@
 """An SDH-2 emulator that speaks the hand's ASCII protocol (bytes in, bytes out).
 
-It answers the commands listed in ../shared/protocols/sdh2.md in their documented reply
+It answers the commands listed in SCHUNK SDHLibrary-C++ 0.0.2.10 and the ROS driver schunk_sdh in their documented reply
 forms, in degrees, over any server of :mod:`touchloc.hardware.emulator.servers` (pty, TCP,
 python-can). Faults can be injected to test the driver's error handling.
 """
