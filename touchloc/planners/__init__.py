@@ -8,6 +8,7 @@
 from .actions import (ActionCost, GuardedTouch, HandTouch, TouchResult, TravelDistance, TravelTime, as_cost,
                       fingers_of)
 from .candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
+from .identity import IdentityPlanner
 from .lookahead import OneStepPlanner, Plan, RandomPlanner, TwoStepPlanner
 from .loop import ActiveResult, SimulatedWorld, Step, active_localization
 from .metrics import add_s, best_pose, expected_add_s
@@ -22,5 +23,5 @@ __all__ = [
     "RandomPlanner", "Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "CandidateGenerator",
     "world_pool", "relative_pool", "hand_pool", "active_localization", "SimulatedWorld", "ActiveResult", "Step",
     "add_s", "best_pose", "expected_add_s", "Scenario", "make_scenario", "TouchFilter", "TouchLikelihood",
-    "EstimatorUpdater",
+    "EstimatorUpdater", "IdentityPlanner",
 ]
