@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from touchloc import geometry
 from touchloc.belief import (MCMC, AnnealedParticleFilter, DegenerateBeliefWarning, HistogramFilter,
                              ManifoldParticleFilter, ParticleFilter, PoseRegion, ScalingSeries, add_s)
 from touchloc.errors import BeliefDegenerateError, ValidationError

@@ -4,8 +4,7 @@ import trimesh
 
 from touchloc import geometry
 from touchloc.errors import ValidationError
-from touchloc.models import (Contacts, FreeSpaceModel, GaussianDynamics, IntegratedProximityModel,
-                             MeshObject, ProximityModel)
+from touchloc.models import Contacts, FreeSpaceModel, GaussianDynamics, IntegratedProximityModel, MeshObject
 from touchloc.planners import GuardedTouch, TouchResult
 
 

@@ -181,10 +181,6 @@ def test_outputs_and_cli(tmp_path):
 
 def test_a_belief_estimator_can_drive_the_loop(box, model):
     """EstimatorUpdater: re-localise with Scaling Series from all contacts and free space."""
-    try:
-        from touchloc.belief import ScalingSeries  # noqa: F401
-    except ImportError:  # pragma: no cover - the estimator is optional
-        pytest.skip("touchloc.belief.ScalingSeries is not available")
     from touchloc.planners.update import EstimatorUpdater
 
     reg = _x_region(box)

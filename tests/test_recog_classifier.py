@@ -8,8 +8,8 @@ import trimesh
 
 from touchloc.errors import TouchlocError, ValidationError
 from touchloc.models import MeshObject
-from touchloc.recognition import (LocalLinearMap, NearestNeighbourClassifier, NotFittedError, PadConfig,
-                                  SequenceClassifier, TactileScanner, aev_quantize, align_sequences,
+from touchloc.recognition import (LocalLinearMap, NearestNeighbourClassifier, NotFittedError,
+                                  SequenceClassifier, aev_quantize, align_sequences,
                                   sanger_pca, simulate_dataset, svd_pca)
 
 

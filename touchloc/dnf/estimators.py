@@ -18,7 +18,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
 from ..errors import ValidationError
-from .tracker import as_angles
+from .tracker import as_angles, as_odometry
 
 __all__ = ["count_surfaces", "surface_peaks", "HistogramEstimator", "normalize_max"]
 
@@ -115,10 +115,7 @@ class HistogramEstimator:
     def step(self, normal_angles, odometry: float) -> float:
         """Add one sample's normals ((K,) rad, world frame) at the given odometry (rad)."""
         a = as_angles(normal_angles)
-        odo = float(odometry)
-        if not np.isfinite(odo):
-            raise ValidationError(f"odometry must be a finite float (rad), got {odo}")
-        self.odometry = odo
+        self.odometry = as_odometry(odometry)
         self._step(a)
         return self.odometry
 

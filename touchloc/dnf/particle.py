@@ -32,7 +32,7 @@ import numpy as np
 
 from .._util import as_rng
 from ..errors import ValidationError
-from .tracker import as_angles
+from .tracker import as_angles, as_odometry
 
 __all__ = ["ParticleOrientationEstimator"]
 
@@ -154,12 +154,20 @@ class ParticleOrientationEstimator:
     def step(self, normal_angles, odometry: float) -> float:
         """Process one sample ((K,) normal angles, rad, world frame; odometry, rad)."""
         a = as_angles(normal_angles)
-        odo = float(odometry)
-        if not np.isfinite(odo):
-            raise ValidationError(f"odometry must be a finite float (rad), got {odo}")
-        self.odometry = odo
+        self.odometry = as_odometry(odometry)
         self._step(a)
         return self.orientation
+
+    def _bins(self, a: np.ndarray):
+        """Object-frame positions of the normals in every particle's map, for linear
+        interpolation: fractions (N, K) and flat indices of the two neighbouring bins."""
+        B = self.n_bins
+        x = ((a[None, :] - self.odometry - self.offsets[:, None]) % TWO_PI) * (B / TWO_PI)
+        i0 = np.floor(x).astype(np.int64)
+        fr = x - i0
+        i0 %= B
+        i1 = (i0 + 1) % B
+        return fr, (self._rows + i0).ravel(), (self._rows + i1).ravel()
 
     def _step(self, a: np.ndarray) -> None:
         N, B = self.n_particles, self.n_bins
@@ -168,13 +176,7 @@ class ParticleOrientationEstimator:
         self.offsets += self.scales * d_odo + self.rng.normal(0.0, self.drift_std, N)
         if self.scale_std:
             self.scales += self.rng.normal(0.0, self.scale_std, N)
-        # object-frame positions in bin units, (N, K)
-        x = ((a[None, :] - self.odometry - self.offsets[:, None]) % TWO_PI) * (B / TWO_PI)
-        i0 = np.floor(x).astype(np.int64)
-        fr = x - i0
-        i0 %= B
-        i1 = (i0 + 1) % B
-        flat0, flat1 = (self._rows + i0).ravel(), (self._rows + i1).ravel()
+        fr, flat0, flat1 = self._bins(a)
         m = self.maps.ravel()
         dens = (1.0 - fr.ravel()) * m[flat0] + fr.ravel() * m[flat1]
         tot = self.maps.sum(axis=1)
@@ -185,12 +187,7 @@ class ParticleOrientationEstimator:
             self.log_weights = lw
             if self.ess() < 0.5 * N:
                 self._resample()
-                x = ((a[None, :] - self.odometry - self.offsets[:, None]) % TWO_PI) * (B / TWO_PI)
-                i0 = np.floor(x).astype(np.int64)
-                fr = x - i0
-                i0 %= B
-                i1 = (i0 + 1) % B
-                flat0, flat1 = (self._rows + i0).ravel(), (self._rows + i1).ravel()
+                fr, flat0, flat1 = self._bins(a)
         if self.forget:
             self.maps *= 1.0 - self.forget
         add = np.bincount(flat0, weights=(1.0 - fr).ravel(), minlength=N * B)

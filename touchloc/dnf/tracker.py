@@ -30,7 +30,18 @@ from ..errors import ValidationError
 from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve,
                      periodic_distance, site_angles)
 
-__all__ = ["TrackerParams", "OrientationTracker", "population_code", "as_angles"]
+__all__ = ["TrackerParams", "OrientationTracker", "population_code", "as_angles", "as_odometry"]
+
+
+def as_odometry(odometry) -> float:
+    """Validate the hand's rotation estimate: a finite float (rad)."""
+    try:
+        odo = float(odometry)
+    except (TypeError, ValueError):
+        raise ValidationError(f"odometry must be a finite float (rad), got {odometry!r}") from None
+    if not np.isfinite(odo):
+        raise ValidationError(f"odometry must be a finite float (rad), got {odo}")
+    return odo
 
 
 def as_angles(normal_angles, name: str = "normal_angles") -> np.ndarray:
@@ -234,13 +245,7 @@ class OrientationTracker:
             The corrected orientation estimate after this sample, rad.
         """
         a = as_angles(normal_angles)
-        try:
-            odo = float(odometry)
-        except (TypeError, ValueError):
-            raise ValidationError(f"odometry must be a finite float (rad), got {odometry!r}") from None
-        if not np.isfinite(odo):
-            raise ValidationError(f"odometry must be a finite float (rad), got {odo}")
-        self.odometry = odo
+        self.odometry = as_odometry(odometry)
         self._step(a)
         return self.orientation
 

@@ -309,7 +309,7 @@ class GuardedTouchExecutor:
         return self.hand.wait_until_idle(max(self.move_timeout, 3.0 * duration + 1.0))
 
     def _run(self, touch: GuardedTouch, plan: TouchPlan):
-        hand, kin = self.hand, self.kinematics
+        hand = self.hand
         f = plan.finger
         ax = [a for a in FINGER_AXES[f] if a is not None]
         pads = (2 * f, 2 * f + 1)

@@ -390,7 +390,6 @@ def _grid_lists_position(tri, plo, phi, nlo, nhi, nrm, left, right, start, count
     """Position-only lists: every face whose distance to the centre is within
     dmin(centre) + 2 * half_diag can be the closest face somewhere in the cell."""
     C = centres.shape[0]
-    F = tri.shape[0]
     counts = np.zeros(C, np.int64)
     for c in nb.prange(C):
         px, py, pz = centres[c, 0], centres[c, 1], centres[c, 2]
