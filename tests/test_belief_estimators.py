@@ -180,3 +180,28 @@ def test_particle_filter_takes_free_space_after_a_miss(box):
     x = b.poses[:, 0, 3]
     assert np.sum(b.weights[x > -0.006]) < 0.01
     assert np.sum(b.weights[x < -0.01]) > 0.95
+
+
+def test_dynamic_scaling_series_follows_a_moving_object(box):
+    region = PoseRegion.box((0, 0, 0), 0.03, "yaw")
+    model = ProximityModel(box, 0.002, 0.1)
+    ss = ScalingSeries(model, dynamics=GaussianDynamics(0.003, 0.03), rng=0)
+    ss.initialize(region)
+    true = region.sample(1, rng=11)[0]
+    ss.update(face_contacts(box, true, per_face=1, noise=0.0005, rng=1))
+    assert add_s(box, ss.belief.map_pose(), true) < 0.003
+    moved = true.copy()
+    moved[:3, 3] += [0.004, -0.003, 0.0]  # the object is pushed 5 mm
+    ss.predict()
+    b = ss.update(face_contacts(box, moved, per_face=1, noise=0.0005, rng=2))
+    assert add_s(box, b.map_pose(), moved) < 0.003
+    # it followed the object: within the final delta (4 mm) of the new position, and
+    # nearer the new position than the old one
+    e_new = np.linalg.norm(b.map_pose()[:3, 3] - moved[:3, 3])
+    e_old = np.linalg.norm(b.map_pose()[:3, 3] - true[:3, 3])
+    assert e_new < 0.004 and e_new < e_old
+    with pytest.raises(ValidationError, match="dynamics"):
+        s2 = ScalingSeries(model, rng=0)
+        s2.initialize(region)
+        s2.update(face_contacts(box, true, per_face=1, rng=1))
+        s2.predict()
