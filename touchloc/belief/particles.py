@@ -237,11 +237,11 @@ class ParticleBelief:
             raise ValidationError("no radius: give radius= or build the belief with a resolution")
         S = self.poses[self.credible_set(level)]
         reg = self._region()
-        dt = Q[:, None, :3, 3] - S[None, :, :3, 3]
-        tr = np.einsum("mij,nij->mn", Q[:, :3, :3], S[:, :3, :3])
-        ang = np.arccos(np.clip((tr - 1) / 2, -1, 1))
-        d = np.sqrt(np.sum(dt**2, axis=2) + (reg._rho() * ang) ** 2 if reg.rotation != "fixed" else np.sum(dt**2, axis=2))
-        return np.any(d <= r, axis=1)
+        d2 = np.sum((Q[:, None, :3, 3] - S[None, :, :3, 3]) ** 2, axis=2)
+        if reg.rotation != "fixed":
+            tr = np.einsum("mij,nij->mn", Q[:, :3, :3], S[:, :3, :3])
+            d2 = d2 + (reg._rho() * np.arccos(np.clip((tr - 1) / 2, -1, 1))) ** 2
+        return np.any(d2 <= r * r, axis=1)
 
     def summary(self) -> str:
         """One line: MAP pose and spreads (mm, deg)."""
