@@ -70,18 +70,10 @@ def touch_sequence(ex: GuardedTouchExecutor):
 
 
 def estimate(obj, log_path, *, seed: int, half_extent: float, restarts: int = 3):
-    """Pose estimate from a session log: Scaling Series if available, else importance sampling."""
+    """Pose estimate from a session log, by Scaling Series over x, y and yaw on the table."""
+    from touchloc.belief import PoseRegion, ScalingSeries
+
     model = ProximityModel(obj, sigma_pos=0.003, sigma_nor=0.5)
-    try:
-        from touchloc.belief import PoseRegion, ScalingSeries
-    except ImportError:
-        rng = np.random.default_rng(seed)
-        v = np.zeros((200_000, 6))
-        v[:, :2] = rng.uniform(-half_extent, half_extent, (len(v), 2))
-        v[:, 5] = rng.uniform(-np.pi, np.pi, len(v))
-        poses = geometry.vector_to_pose(v)
-        best = lambda contacts: poses[int(np.argmax(model.log_likelihood(poses, contacts)))]  # noqa: E731
-        return replay(log_path, best), "importance sampling"
     region = PoseRegion.planar(center=(0.0, 0.0), half_extent=half_extent, z=0.0)
     # a few independent runs, keeping the most likely answer: with a dozen contacts one run
     # now and then settles in a worse mode
