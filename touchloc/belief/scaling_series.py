@@ -41,11 +41,6 @@ class ScalingSeries:
         Terminal neighbourhood radius delta* (pose metric, m) of Alg. 1. Default: twice
         the model's sigma_pos (or 4 mm). The temperature at scale delta is
         (delta / delta*)^2.
-    refine_to : float, optional
-        Beyond Alg. 1: after reaching delta*, keep zooming at temperature 1 down to this
-        radius (m), so that the final particles resolve posteriors narrower than delta*
-        (many contacts); "auto" is sigma_pos / 2. Default None (or >= delta_final)
-        stops at delta* exactly as Alg. 1.
     m_per_delta : int
         Particles per delta-neighbourhood (M of Alg. 1).
     n_initial : int
@@ -73,8 +68,7 @@ class ScalingSeries:
     rng : None, int or Generator
     """
 
-    def __init__(self, model, *, delta_final: float | None = None, refine_to: float | str | None = None,
-                 m_per_delta: int = 6,
+    def __init__(self, model, *, delta_final: float | None = None, m_per_delta: int = 6,
                  n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
                  prune_ratio: float = 1e-3, anneal: str | float = "alg1", dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
@@ -83,11 +77,6 @@ class ScalingSeries:
         self.delta_final = float(delta_final) if delta_final else (2.0 * sp if sp else 0.004)
         if not (np.isfinite(self.delta_final) and self.delta_final > 0):
             raise ValidationError(f"delta_final must be > 0 (m), got {delta_final}")
-        if isinstance(refine_to, str):
-            if refine_to != "auto":
-                raise ValidationError(f"refine_to must be a radius (m), None or 'auto', got {refine_to!r}")
-            refine_to = 0.5 * sp if sp else None
-        self.refine_to = None if refine_to is None else min(float(refine_to), self.delta_final)
         if int(m_per_delta) < 1 or int(max_particles) < 1 or int(n_initial) < 1:
             raise ValidationError("m_per_delta, n_initial and max_particles must be positive integers")
         if prune not in ("threshold", "resample"):
@@ -184,19 +173,14 @@ class ScalingSeries:
             first = False
             volume = np.nan
         zoom = 2.0 ** (-1.0 / dim)
-        n_anneal = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
-        n_refine = 0
-        if self.refine_to is not None and self.refine_to < d_star:
-            n_refine = int(np.floor(dim * np.log2(d_star / self.refine_to)))
-        n_scales = n_anneal + n_refine
-        d_end = d_star * zoom**n_refine
+        n_scales = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
         delta = delta0
         steps = progress(range(n_scales + 1), total=n_scales + 1, desc="scaling series", enabled=self.progress)
         for n in steps:
             t0 = time.perf_counter()
             last = n == n_scales
             if last:
-                new_delta, tau = d_end, 1.0
+                new_delta, tau = d_star, 1.0
             else:
                 new_delta = zoom * delta
                 gain = {"contacts": np.sqrt(len(contacts)), "alg1": 1.0}.get(self.anneal, self.anneal)
@@ -214,7 +198,7 @@ class ScalingSeries:
             if last:
                 # the final cover's volume (metric units): each particle stands for volume / N,
                 # which turns the weights into an evidence estimate (see belief.identify)
-                belief.info.update(delta_final=d_end, n_scales=n_scales, cover_volume=float(volume),
+                belief.info.update(delta_final=d_star, n_scales=n_scales, cover_volume=float(volume),
                                    log_likelihood=ll)
                 flag_degenerate(belief, float(ll.max()), contacts)
                 yield ScaleStep(n, new_delta, tau, n_part, n_part, belief, time.perf_counter() - t0)

@@ -17,6 +17,7 @@ from scipy.special import log_ndtr, logsumexp
 from .._util import as_poses, as_rng
 from ..errors import ValidationError
 from ..models import Contacts, MeasurementModel, ProximityModel
+from ..models.base import check_temperature
 from .actions import TouchResult
 from .simulate import simulate
 
@@ -61,12 +62,7 @@ class TouchLikelihood(MeasurementModel):
         self.sigma_free = float(sigma_free) if sigma_free else 2.0 * sp
         self.eps, self.margin = float(eps), float(margin)
         hits = [r.contact for r in results if r.contact is not None]
-        if hits and use_contacts:
-            pts = np.concatenate([c.points for c in hits])
-            nrm = None if any(c.normals is None for c in hits) else np.concatenate([c.normals for c in hits])
-            self.contacts = Contacts(pts, nrm)
-        else:
-            self.contacts = None
+        self.contacts = Contacts.concatenate(hits) if hits and use_contacts else None
         self.travel = np.array([r.travel for r in results], dtype=float)
 
     def __repr__(self) -> str:
@@ -74,6 +70,7 @@ class TouchLikelihood(MeasurementModel):
 
     def log_likelihood(self, poses, contacts=None, temperature: float = 1.0) -> np.ndarray:
         """(N,) log-likelihood of the touches for each pose (``contacts`` is ignored)."""
+        T = check_temperature(temperature)
         P = as_poses(poses)
         ll = np.zeros(len(P))
         if not self.results:
@@ -85,7 +82,7 @@ class TouchLikelihood(MeasurementModel):
         z = (s - self.travel[None, :]) / self.sigma_free + self.margin
         lp = np.logaddexp(np.log(self.eps), np.log1p(-self.eps) + log_ndtr(z))
         ll += lp.sum(axis=1)
-        return ll / temperature
+        return ll / T
 
 
 class TouchFilter:
