@@ -20,6 +20,7 @@ __all__ = [
     "FirmwareError",
     "JointLimitError",
     "DeviceDisconnected",
+    "MappingError",
 ]
 
 
@@ -74,3 +75,7 @@ class JointLimitError(HardwareError, ValueError):
 
 class DeviceDisconnected(HardwareError, ConnectionError):
     """The transport to a device closed or vanished."""
+
+
+class MappingError(TouchlocError):
+    """A shape map cannot give what was asked (no contacts yet, an empty level set)."""

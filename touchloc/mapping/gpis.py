@@ -1,0 +1,196 @@
+"""A Gaussian-process implicit surface with gradient observations, updated incrementally.
+
+The surface is the zero level set of a function f: R^3 -> R that behaves like a signed
+distance (negative inside, positive outside, unit gradient). f is a Gaussian process
+
+    f(x) = m(x) + g(x),   g ~ GP(0, k),   k(x, y) = s^2 exp(-|x - y|^2 / (2 l^2))
+
+with a parametric prior mean m (a signed distance to a sphere or a superquadric fitted to
+the data). A contact (p, n) gives two observations: f(p) = 0 (value) and grad f(p) = n
+(gradient), the second through the derivatives of the kernel (Solak et al., "Derivative
+observations in Gaussian process models of dynamic systems", NIPS 2003). Free space gives
+value observations f(x) = c > 0 where the current mean would put x inside the object.
+
+Observations are kept as scalar rows: a point, a kind (-1 for a value, 0/1/2 for a
+component of the gradient) and a noise variance. Adding a block of k rows to n extends
+the Cholesky factor of the kernel matrix by a bordered update in O(n^2 k) instead of a
+refactorisation in O((n + k)^3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_solve, solve_triangular
+
+from ..errors import TouchlocError
+
+__all__ = ["GPIS"]
+
+_CHUNK = 2048
+
+
+class GPIS:
+    """Gaussian-process implicit surface (internal engine of :class:`ShapeMap`).
+
+    Parameters
+    ----------
+    lengthscale : float
+        l of the squared-exponential kernel (m).
+    signal_std : float
+        s: prior standard deviation of f about the prior mean (m).
+    prior : callable
+        ``prior(points (M, 3)) -> (values (M,), gradients (M, 3))``, the prior mean m and
+        its gradient. May be replaced later with :meth:`set_prior` (cheap: the kernel
+        matrix does not depend on it).
+    """
+
+    def __init__(self, lengthscale: float, signal_std: float, prior):
+        self.l = float(lengthscale)
+        self.s2 = float(signal_std) ** 2
+        self.prior = prior
+        self.X = np.zeros((0, 3))
+        self.kind = np.zeros(0, dtype=np.int64)
+        self.y = np.zeros(0)
+        self.noise = np.zeros(0)
+        self.L = np.zeros((0, 0))
+        self._alpha = None
+
+    # -- kernel ----------------------------------------------------------------------
+    def kernel(self, X1, k1, X2, k2) -> np.ndarray:
+        """Covariance between scalar observations (values and gradient components)."""
+        D = X1[:, None, :] - X2[None, :, :]
+        l2 = self.l * self.l
+        K = self.s2 * np.exp(-0.5 * np.einsum("ijk,ijk->ij", D, D) / l2)
+        v1, v2 = k1 < 0, k2 < 0
+        if np.all(v1) and np.all(v2):
+            return K
+        a = np.where(v1, 0, k1)
+        b = np.where(v2, 0, k2)
+        Da = np.take_along_axis(D, np.broadcast_to(a[:, None, None], (len(X1), len(X2), 1)), axis=2)[..., 0]
+        Db = np.take_along_axis(D, np.broadcast_to(b[None, :, None], (len(X1), len(X2), 1)), axis=2)[..., 0]
+        V1, V2 = v1[:, None], v2[None, :]
+        same = (a[:, None] == b[None, :]).astype(float)
+        f = np.where(V1 & V2, 1.0,
+                     np.where(V1, Db / l2,
+                              np.where(V2, -Da / l2, same / l2 - Da * Db / (l2 * l2))))
+        return K * f
+
+    # -- data ------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.y)
+
+    def _residual(self, X, kind, y):
+        m, g = self.prior(X)
+        prior = np.where(kind < 0, m, g[np.arange(len(X)), np.maximum(kind, 0)])
+        return y - prior
+
+    def add(self, X, kind, y, noise) -> None:
+        """Append scalar observations and extend the Cholesky factor (bordered update)."""
+        X = np.asarray(X, float).reshape(-1, 3)
+        kind = np.asarray(kind, dtype=np.int64).reshape(-1)
+        y = np.asarray(y, float).reshape(-1)
+        noise = np.asarray(noise, float).reshape(-1)
+        if len(y) == 0:
+            return
+        C = self.kernel(X, kind, X, kind) + np.diag(noise)
+        if self.n == 0:
+            L2 = _chol(C)
+            self.L = L2
+        else:
+            B = self.kernel(self.X, self.kind, X, kind)
+            W = solve_triangular(self.L, B, lower=True, check_finite=False)
+            L2 = _chol(C - W.T @ W)
+            n, k = self.n, len(y)
+            L = np.zeros((n + k, n + k))
+            L[:n, :n] = self.L
+            L[n:, :n] = W.T
+            L[n:, n:] = L2
+            self.L = L
+        self.X = np.concatenate([self.X, X])
+        self.kind = np.concatenate([self.kind, kind])
+        self.y = np.concatenate([self.y, y])
+        self.noise = np.concatenate([self.noise, noise])
+        self._alpha = None
+
+    def refactor(self) -> None:
+        """Rebuild the Cholesky factor from scratch (the reference for the incremental one)."""
+        if self.n:
+            self.L = _chol(self.kernel(self.X, self.kind, self.X, self.kind) + np.diag(self.noise))
+        self._alpha = None
+
+    def set_prior(self, prior) -> None:
+        self.prior = prior
+        self._alpha = None
+
+    @property
+    def alpha(self) -> np.ndarray:
+        if self._alpha is None:
+            r = self._residual(self.X, self.kind, self.y) if self.n else np.zeros(0)
+            self._alpha = cho_solve((self.L, True), r, check_finite=False) if self.n else r
+        return self._alpha
+
+    # -- prediction --------------------------------------------------------------------
+    def _kq(self, q):
+        """Covariance between f at query points q (M, 3) and every observation: (M, n)."""
+        X, kind = self.X, self.kind
+        d2 = np.sum(q * q, 1)[:, None] + np.sum(X * X, 1)[None, :] - 2.0 * q @ X.T
+        K = self.s2 * np.exp(-0.5 * np.maximum(d2, 0.0) / (self.l * self.l))
+        g = kind >= 0
+        if np.any(g):
+            b = np.maximum(kind, 0)
+            K[:, g] *= (q[:, b[g]] - X[g, b[g]][None, :]) / (self.l * self.l)
+        return K
+
+    def mean(self, Q) -> np.ndarray:
+        """(M,) posterior mean of f at query points."""
+        Q = np.asarray(Q, float).reshape(-1, 3)
+        m, _ = self.prior(Q)
+        if self.n == 0 or len(Q) == 0:
+            return m
+        a = self.alpha
+        X, kind, l2 = self.X, self.kind, self.l * self.l
+        # sum_j K_ij c_ij a_j with c = 1 (values) or (q_ib - x_jb) / l^2 (gradient component b):
+        # one kernel matrix, then matrix-vector products only
+        w0 = np.where(kind < 0, a, 0.0)
+        wb = [np.where(kind == b, a, 0.0) / l2 for b in range(3)]
+        w0 = w0 - sum(wb[b] * X[:, b] for b in range(3))
+        W = np.stack([w0] + wb, axis=1)  # (n, 4)
+        xx = np.sum(X * X, 1)
+        out = np.empty(len(Q))
+        for i in range(0, len(Q), 4 * _CHUNK):
+            q = Q[i:i + 4 * _CHUNK]
+            d2 = np.sum(q * q, 1)[:, None] + xx[None, :] - 2.0 * q @ X.T
+            K = np.exp(-0.5 * np.maximum(d2, 0.0) / l2)
+            KW = K @ W
+            out[i:i + len(q)] = self.s2 * (KW[:, 0] + np.einsum("ij,ij->i", q, KW[:, 1:]))
+        return m + out
+
+    def mean_std(self, Q):
+        """(M,) posterior mean and standard deviation of f at query points."""
+        Q = np.asarray(Q, float).reshape(-1, 3)
+        m, _ = self.prior(Q)
+        if self.n == 0 or len(Q) == 0:
+            return m, np.full(len(Q), np.sqrt(self.s2))
+        mu = np.empty(len(Q))
+        var = np.empty(len(Q))
+        a = self.alpha
+        for i in range(0, len(Q), _CHUNK):
+            q = Q[i:i + _CHUNK]
+            Kq = self._kq(q)
+            mu[i:i + len(q)] = Kq @ a
+            V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
+            var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
+        return m + mu, np.sqrt(np.maximum(var, 1e-18))
+
+
+def _chol(A):
+    """Lower Cholesky factor, with a little jitter if rounding made A indefinite."""
+    jitter = 0.0
+    scale = float(np.mean(np.diag(A))) if len(A) else 1.0
+    for _ in range(6):
+        try:
+            return np.linalg.cholesky(A + jitter * np.eye(len(A)))
+        except np.linalg.LinAlgError:
+            jitter = max(jitter * 10, 1e-10 * scale)
+    raise TouchlocError("the shape map's kernel matrix is not positive definite (duplicate observations?)")
