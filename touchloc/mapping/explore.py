@@ -6,10 +6,12 @@ Three strategies (Handbook of Robotics ch. 42.2.1, "Autonomous Exploration"):
 - ``"lattice"``: the exhaustive strategy, touches aimed at the box centre from directions
   on a near-uniform (Fibonacci) lattice of the sphere, taken in an order whose every
   prefix is spread out;
-- ``"uncertainty"``: of a pool of random touches, the one whose path crosses the most
-  shape uncertainty before it is expected to stop: sum over samples k along the ray of
-  T_k H(p_k), with p_k the probability that sample k is inside the object, H the binary
-  entropy and T_k = prod_{j<k} (1 - p_j) the probability that the probe gets that far.
+- ``"uncertainty"``: of a pool of random touches, the one expected to stop where the
+  shape is least known: sum over samples k along the ray of P(stop at k) sd_k^2, with
+  P(stop at k) = p_k prod_{j<k} (1 - p_j), p_k the probability that sample k is inside
+  the object and sd_k the map's uncertainty there (``score="entropy"`` instead sums the
+  binary entropy of inside/outside over the samples the probe is expected to reach; it
+  prefers long grazing paths, which miss thin objects, and maps worse).
 """
 
 from __future__ import annotations
@@ -67,8 +69,8 @@ def box_pool(bounds, n: int = 60, *, rng=None, margin: float = 0.02, probe_radiu
 def lattice_pool(bounds, n: int, *, margin: float = 0.02, probe_radius: float = 0.0) -> list:
     """n touches aimed at the box centre from a Fibonacci lattice of directions.
 
-    The lattice is ordered by the bit-reversed index, so the first k touches of the list
-    are spread over the whole sphere for every k.
+    The lattice is put in farthest-point order (each next direction is the one farthest
+    from all before it), so the first k touches are spread over the sphere for every k.
     """
     lo, hi = as_bounds(bounds)
     n = _as_count(n, "n")
@@ -78,13 +80,21 @@ def lattice_pool(bounds, n: int, *, margin: float = 0.02, probe_radius: float = 
     phi = np.pi * (1.0 + 5 ** 0.5) * i
     rxy = np.sqrt(np.maximum(1.0 - z * z, 0.0))
     u = np.stack([rxy * np.cos(phi), rxy * np.sin(phi), z], axis=1)
-    order = np.argsort([_bit_reverse(k, n) for k in range(n)], kind="stable")
+    order = _farthest_point_order(u)
     return [GuardedTouch(c + R * u[k], -u[k], 2 * R, probe_radius, name=f"lattice {k}") for k in order]
 
 
-def _bit_reverse(k, n):
-    bits = max(1, int(np.ceil(np.log2(max(n, 2)))))
-    return int(format(k, f"0{bits}b")[::-1], 2)
+def _farthest_point_order(u):
+    """Greedy farthest-point ordering of unit vectors (O(n^2), n up to a few thousand)."""
+    n = len(u)
+    order = np.empty(n, dtype=np.int64)
+    order[0] = 0
+    d = np.linalg.norm(u - u[0], axis=1)
+    for i in range(1, n):
+        k = int(np.argmax(d))
+        order[i] = k
+        d = np.minimum(d, np.linalg.norm(u - u[k], axis=1))
+    return order
 
 
 def _as_count(n, name, hi=_MAX_TOUCHES):
@@ -93,7 +103,7 @@ def _as_count(n, name, hi=_MAX_TOUCHES):
     return int(n)
 
 
-def ray_information(smap: ShapeMap, touches, *, samples: int = 24) -> np.ndarray:
+def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = "variance") -> np.ndarray:
     """(C,) expected shape information along each touch's path (see the module notes)."""
     lo, hi = smap.lo, smap.hi
     O = np.array([t.origin for t in touches])
@@ -115,9 +125,14 @@ def ray_information(smap: ShapeMap, touches, *, samples: int = 24) -> np.ndarray
     else:
         p_in = 1.0 / (1.0 + np.exp(mu))
     p_in = np.clip(p_in.reshape(len(touches), samples), 1e-9, 1 - 1e-9)
-    H = -(p_in * np.log(p_in) + (1 - p_in) * np.log1p(-p_in))
     reach = np.cumprod(np.concatenate([np.ones((len(touches), 1)), 1 - p_in[:, :-1]], axis=1), axis=1)
-    return np.where(ok, (reach * H).sum(axis=1), 0.0)
+    if score == "entropy":
+        H = -(p_in * np.log(p_in) + (1 - p_in) * np.log1p(-p_in))
+        return np.where(ok, (reach * H).sum(axis=1), 0.0)
+    # expected shape variance where the probe stops: sum_k P(stop at k) sd_k^2
+    stop = reach * p_in
+    sd = sd.reshape(len(touches), samples)
+    return np.where(ok, (stop * sd * sd).sum(axis=1), 0.0)
 
 
 @dataclass

@@ -8,6 +8,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from .._util import as_points
 from ..errors import MappingError, ValidationError
@@ -361,8 +362,6 @@ class ShapeMap:
         """
         from skimage.measure import marching_cubes
 
-        import trimesh
-
         from ..models import MeshObject
 
         if self.n_contacts == 0:
@@ -375,10 +374,7 @@ class ShapeMap:
         verts, faces, _, _ = marching_cubes(V, level=0.0, spacing=(h, h, h), allow_degenerate=False)
         verts = verts + origin - h
         mesh = trimesh.Trimesh(verts, faces[:, ::-1], process=True)
-        # keep the component with the most area (stray blobs of free-space carving go)
-        parts = mesh.split(only_watertight=False)
-        if len(parts) > 1:
-            mesh = max(parts, key=lambda m: m.area)
+        mesh = _touched_parts(mesh, self._pts, 2.0 * h)
         if len(mesh.faces) == 0:
             raise MappingError("marching cubes found no surface")
         if mesh.is_watertight and mesh.volume < 0:
@@ -390,7 +386,7 @@ class ShapeMap:
     # -- files -------------------------------------------------------------------------
     def save(self, path) -> Path:
         """Write the map to ``path`` (.npz): its settings and every touch, replayable."""
-        path = Path(os.fspath(path))
+        path = _as_path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
         rec = _pack_results(self.results)
@@ -405,7 +401,7 @@ class ShapeMap:
     @classmethod
     def load(cls, path) -> "ShapeMap":
         """Read a map written by :meth:`save` (replays its touches, so the map is identical)."""
-        path = Path(os.fspath(path))
+        path = _as_path(path)
         if not path.is_file():
             raise ValidationError(f"no map file at {path}")
         try:
@@ -430,6 +426,12 @@ def _positive(name, v, default):
     if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
         raise ValidationError(f"{name} must be a positive finite number (m), got {v!r}")
     return float(v)
+
+
+def _as_path(path) -> Path:
+    if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
+        raise ValidationError(f"path must be a file path (str or os.PathLike), got {type(path).__name__}")
+    return Path(os.fspath(path))
 
 
 def _checked_prior(fn):
@@ -461,6 +463,23 @@ def _check_results(results) -> list:
         if not isinstance(r, TouchResult):
             raise ValidationError(f"results[{i}] must be a touchloc.planners.TouchResult, got {type(r).__name__}")
     return results
+
+
+def _touched_parts(mesh, contacts, reach):
+    """The connected parts of ``mesh`` that some contact lies on (within ``reach``).
+
+    Stray pieces (pockets no probe swept, ripples of the mean far from the data) go;
+    when no part holds a contact, the part with the most area is kept.
+    """
+    from scipy.spatial import cKDTree
+
+    parts = mesh.split(only_watertight=False)
+    if len(parts) <= 1:
+        return mesh
+    keep = [p for p in parts if np.any(cKDTree(p.vertices).query(contacts, distance_upper_bound=reach)[0] < np.inf)]
+    if not keep:
+        return max(parts, key=lambda m: m.area)
+    return keep[0] if len(keep) == 1 else trimesh.util.concatenate(keep)
 
 
 def _spread(X, r):

@@ -1,0 +1,259 @@
+"""Shape maps from touch: GPIS and occupancy maps, superquadrics, exploration, metrics."""
+
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from touchloc.errors import MappingError, TouchlocError, ValidationError
+from touchloc.mapping import (ShapeMap, box_pool, chamfer_distance, explore, fit_superquadric, fscore,
+                              lattice_pool)
+from touchloc.models import Contacts, MeshObject
+from touchloc.planners import GuardedTouch, SimulatedWorld, TouchResult
+
+
+def _quiet(mesh, name="m"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return MeshObject(mesh, name=name, check_units=False)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return _quiet(trimesh.creation.icosphere(4, radius=0.03), "sphere")
+
+
+def _bounds(obj, pad=0.02):
+    lo, hi = obj.bounds
+    return lo - pad, hi + pad
+
+
+def _touches(obj, n, rng, noise=(0.0005, 0.03)):
+    world = SimulatedWorld(obj, np.eye(4), noise_pos=noise[0], noise_nor=noise[1], rng=rng)
+    res = []
+    for t in lattice_pool(_bounds(obj), n):
+        res += world.execute(t)
+    return res
+
+
+def test_incremental_update_equals_refit(sphere):
+    res = _touches(sphere, 24, 0)
+    inc = ShapeMap(_bounds(sphere), free_space=False)
+    for k in range(0, 24, 8):
+        inc.update(res[k:k + 8])
+    batch = ShapeMap(_bounds(sphere), free_space=False).update(res)
+    Q = np.random.default_rng(1).uniform(-0.04, 0.04, (300, 3))
+    m1, s1 = inc.mean_std(Q)
+    L_inc = inc._gp.L.copy()
+    inc.refit()
+    assert np.allclose(inc._gp.L, L_inc, atol=1e-10)
+    m2, s2 = batch.mean_std(Q)
+    # same observations, in another order of blocks: the same posterior
+    assert np.allclose(m1, m2, atol=1e-9) and np.allclose(s1, s2, atol=1e-9)
+
+
+def test_gpis_recovers_a_sphere_and_its_uncertainty_shrinks(sphere):
+    res = _touches(sphere, 40, 2)
+    smap = ShapeMap(_bounds(sphere))
+    far = np.array([[0.0, 0.0, 0.049]])
+    before = smap.surface_std(far)[0]
+    smap.update(res)
+    pts, _, _ = sphere.sample_surface(400, rng=3)
+    mu, sd = smap.mean_std(pts)
+    assert np.median(np.abs(mu)) < 0.001          # the true surface is the zero level set
+    assert np.median(sd) < 0.5 * before            # and is known better than before any touch
+    mesh = smap.to_mesh()
+    assert chamfer_distance(mesh, sphere, n=3000) < 0.0015
+    assert fscore(mesh, sphere, 0.005, n=3000) > 0.95
+
+
+def test_free_space_pushes_the_gpis_surface_out_of_swept_space(sphere):
+    # one contact on top; a miss sweeps right beside the sphere where the prior puts matter
+    hit = _touches(sphere, 1, 0)
+    lo, hi = _bounds(sphere)
+    miss = TouchResult(GuardedTouch((0.036, -0.06, 0.0), (0, 1, 0), 0.12), 0.12, None)
+    with_free = ShapeMap((lo, hi), prior=lambda X: (np.linalg.norm(X, axis=1) - 0.045, X / np.linalg.norm(X, axis=1)[:, None]))
+    without = ShapeMap((lo, hi), free_space=False,
+                       prior=lambda X: (np.linalg.norm(X, axis=1) - 0.045, X / np.linalg.norm(X, axis=1)[:, None]))
+    with_free.update(hit + [miss])
+    without.update(hit + [miss])
+    swept = np.array([[0.036, y, 0.0] for y in np.linspace(-0.02, 0.02, 9)])
+    assert np.all(without.signed_distance(swept) < 0)     # the prior alone says "inside"
+    assert np.all(with_free.signed_distance(swept) > -0.0005)  # the sweep says otherwise
+
+
+def test_occupancy_free_space_lowers_and_contacts_raise(sphere):
+    lo, hi = _bounds(sphere)
+    smap = ShapeMap((lo, hi), method="occupancy", resolution=32)
+    p0 = smap._grid.probability(np.zeros((1, 3)))[0]
+    miss = TouchResult(GuardedTouch((-0.06, 0.04, 0.0), (1, 0, 0), 0.12), 0.12, None)
+    hit = _touches(sphere, 1, 0)
+    smap.update([miss] + hit)
+    swept = np.array([[x, 0.04, 0.0] for x in np.linspace(-0.04, 0.04, 5)])
+    assert np.all(smap._grid.probability(swept) < p0)
+    c = hit[0].contact
+    behind = c.points - 0.5 * smap._grid.voxel * c.normals
+    assert smap._grid.probability(behind)[0] > p0
+    assert np.all(smap.surface_std(swept) < 0.5)
+
+
+def test_occupancy_map_is_a_conservative_carved_hull():
+    """Unknown space stays possibly occupied: the map never carves into the object, and
+    every sweep removes volume."""
+    box = _quiet(trimesh.creation.box((0.06, 0.04, 0.05)), "box")
+    world = SimulatedWorld(box, np.eye(4), noise_pos=0.0005, noise_nor=0.03, rng=4)
+    smap = ShapeMap(_bounds(box), method="occupancy", resolution=48)
+    occupied = [np.mean(smap._grid.logodds > 0)]
+    for k in range(3):
+        res = [r for t in box_pool(_bounds(box), 100, rng=k, probe_radius=0.004) for r in world.execute(t)]
+        smap.update(res)
+        occupied.append(np.mean(smap._grid.logodds > 0))
+    assert occupied[0] == 1.0 and all(b < a for a, b in zip(occupied, occupied[1:]))
+    pts, nrm, _ = box.sample_surface(2000, rng=0)
+    inner = pts - 1.5 * smap._grid.voxel * nrm
+    assert np.mean(smap._grid.probability(inner) > 0.5) > 0.97
+    hull = smap.to_mesh()
+    assert hull.mesh.volume > box.mesh.volume
+
+
+@pytest.mark.parametrize("scale,eps", [((0.03, 0.02, 0.05), (0.2, 0.2)), ((0.025, 0.025, 0.04), (0.2, 1.0)),
+                                       ((0.04, 0.03, 0.02), (1.0, 1.0))])
+def test_superquadric_recovers_known_parameters(scale, eps):
+    from scipy.spatial.transform import Rotation
+
+    from touchloc.mapping.superquadric import Superquadric, inside_outside
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.2, -0.3, 0.5]).as_matrix()
+    T[:3, 3] = (0.01, 0.02, -0.01)
+    truth = Superquadric(T, np.array(scale), np.array(eps), np.zeros((11, 11)), 0.0)
+    P = truth.sample_surface(900)
+    X = (P - T[:3, 3]) @ T[:3, :3]
+    _, g = inside_outside(X, truth.scale, truth.eps)
+    N = g @ T[:3, :3].T
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    rng = np.random.default_rng(0)
+    keep = rng.choice(len(P), 150, replace=False)
+    fit = fit_superquadric(Contacts(P[keep] + rng.normal(scale=3e-4, size=(150, 3)), N[keep]), sigma_pos=3e-4)
+    # the extents are defined up to a permutation of the axes: compare sorted
+    assert np.allclose(np.sort(fit.scale), np.sort(scale), atol=0.002)
+    assert fit.rms < 0.001
+    assert np.all(fit.std["scale"] < 0.002) and np.all(np.isfinite(fit.std["eps"]))
+    # the fitted surface lies on the true one
+    Q = fit.sample_surface(400)
+    assert np.median(np.abs(truth.radial_distance(Q))) < 0.001
+
+
+def test_chamfer_and_fscore_metrics(sphere):
+    assert chamfer_distance(sphere, sphere, n=2000) < 1e-9
+    bigger = _quiet(trimesh.creation.icosphere(4, radius=0.032))
+    assert chamfer_distance(bigger, sphere, n=4000) == pytest.approx(0.002, abs=2e-4)
+    assert fscore(bigger, sphere, 0.001, n=2000) < 0.05 and fscore(bigger, sphere, 0.003, n=2000) > 0.99
+
+
+def test_explore_with_every_planner(sphere):
+    world = SimulatedWorld(sphere, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
+    for planner in ("random", "lattice", "uncertainty"):
+        run = explore(world, _bounds(sphere), 12, planner=planner, rng=1)
+        assert run.touches == 12 and len(run.results) == 12
+        assert run.map.n_contacts == sum(r.hit for r in run.results)
+    # the uncertainty planner aims at the object: more of its touches hit than random ones do
+    hits = {p: sum(r.hit for r in explore(world, _bounds(sphere, 0.05), 20, planner=p, rng=2).results)
+            for p in ("random", "uncertainty")}
+    assert hits["uncertainty"] > hits["random"]
+
+
+def test_pools_are_well_formed():
+    lo, hi = np.zeros(3), np.ones(3) * 0.1
+    pool = box_pool((lo, hi), 50, rng=0)
+    assert len(pool) == 50 and all(np.linalg.norm(t.origin - 0.05) > 0.08 for t in pool)
+    lat = lattice_pool((lo, hi), 64)
+    d = np.array([t.direction for t in lat[:8]])
+    assert np.abs(d.mean(axis=0)).max() < 0.5      # an early prefix already surrounds the box
+
+
+def test_save_load_round_trip(tmp_path, sphere):
+    smap = ShapeMap(_bounds(sphere)).update(_touches(sphere, 15, 5))
+    path = smap.save(tmp_path / "m.npz")
+    back = ShapeMap.load(path)
+    Q = np.random.default_rng(0).uniform(-0.04, 0.04, (100, 3))
+    assert np.allclose(back.signed_distance(Q), smap.signed_distance(Q), atol=1e-12)
+    mesh = smap.to_mesh()
+    mesh.mesh.export(tmp_path / "m.ply")
+    again = MeshObject.from_file(tmp_path / "m.ply", check_units=False)
+    assert chamfer_distance(again, mesh, n=2000) < 1e-6
+
+
+def test_map_then_localise_against_the_mapped_mesh():
+    from touchloc.belief import PoseRegion, ScalingSeries, add_s
+    from touchloc.data import load_object
+    from touchloc.models import ProximityModel
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        obj = load_object("cereal")
+    world = SimulatedWorld(obj, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
+    run = explore(world, _bounds(obj), 60, planner="uncertainty", rng=0)
+    mapped = run.map.to_mesh()
+    # the object moved: 10 new contacts at a new pose, localised against the mapped mesh
+    region = PoseRegion.box((0, 0, 0), 0.02, rotation="yaw").with_rho(obj.radius)
+    fails = 0
+    for seed in range(3):
+        true = region.sample(1, rng=10 + seed)[0]
+        pts, nrm, _ = obj.sample_surface(10, rng=seed)
+        rng = np.random.default_rng(seed)
+        c = Contacts(pts + rng.normal(scale=0.001, size=pts.shape), nrm + rng.normal(scale=0.05, size=nrm.shape))
+        model = ProximityModel(mapped, 0.002, 0.15)
+        b = ScalingSeries(model, rng=seed, progress=False).localize(c.transform(true), region)
+        fails += add_s(obj, b.map_pose(), true) >= 0.005
+    assert fails == 0
+
+
+@pytest.mark.parametrize("bounds", [((0, 0, 0), (0, 1, 1)), ((0, 0, np.nan), (1, 1, 1)), "box", ((0, 0), (1, 1)),
+                                    ((1, 1, 1), (0, 0, 0)), ((0, 0, 0), (100, 100, 100))])
+def test_bad_bounds_are_rejected(bounds):
+    with pytest.raises(ValidationError):
+        ShapeMap(bounds)
+
+
+def test_bad_input_gets_clear_errors(sphere):
+    lo, hi = _bounds(sphere)
+    smap = ShapeMap((lo, hi))
+    with pytest.raises(MappingError, match="no contacts"):
+        smap.to_mesh()
+    outside = TouchResult(GuardedTouch((0.5, 0, 0), (1, 0, 0), 0.1), 0.01, Contacts([[0.51, 0, 0]], [[1, 0, 0]]))
+    with pytest.raises(ValidationError, match="outside the map's bounds"):
+        smap.update([outside])
+    assert smap.n_contacts == 0 and len(smap.results) == 0     # nothing half-applied
+    with pytest.raises(ValidationError):
+        smap.update(["not a result"])
+    with pytest.raises(ValidationError):
+        Contacts([[0, 0, 0]], [[0, 0, 0]])                     # zero normals never reach a map
+    for kw in ({"method": "voxels"}, {"sigma_pos": -1.0}, {"sigma_pos": float("nan")}, {"lengthscale": 0.0},
+               {"resolution": 3}, {"prior": "cube"}):
+        with pytest.raises(ValidationError):
+            ShapeMap((lo, hi), **kw)
+    with pytest.raises(ValidationError):
+        explore(object(), (lo, hi), 5)
+    with pytest.raises(ValidationError):
+        explore(SimulatedWorld(sphere, np.eye(4)), (lo, hi), 10**9)
+    with pytest.raises(ValidationError):
+        fit_superquadric(Contacts(np.zeros((3, 3))))
+    with pytest.raises(ValidationError):
+        ShapeMap.load(lo)
+
+
+def test_empty_level_set_is_an_error():
+    lo, hi = np.full(3, -0.01), np.full(3, 0.01)
+    smap = ShapeMap((lo, hi), method="occupancy", resolution=8)
+    c = Contacts([[0.0, 0.0, 0.0]], [[1.0, 0, 0]])
+    smap.update([TouchResult(GuardedTouch((0.05, 0, 0), (-1, 0, 0), 0.1), 0.05, c)])
+    # sweep every cell of the box several times: nothing can be left occupied
+    ys = np.linspace(-0.0095, 0.0095, 16)
+    misses = [TouchResult(GuardedTouch((-0.05, y, z), (1, 0, 0), 0.1), 0.1, None) for y in ys for z in ys]
+    for _ in range(4):
+        smap.update(misses)
+    with pytest.raises(MappingError, match="empty level set"):
+        smap.to_mesh()
+    assert isinstance(MappingError("x"), TouchlocError)
