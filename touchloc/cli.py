@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "touchloc.dnf._cli",
     "touchloc.hardware._cli",
     "touchloc.recognition._cli",
+    "touchloc.mapping._cli",
 ]
 
 
