@@ -177,3 +177,22 @@ def test_old_names_warn_and_still_work(box, model):
     with pytest.raises(AttributeError):
         planners.NoSuchName  # noqa: B018
     assert isinstance(res[0], TouchResult)
+
+
+def test_smc_filter_static_use_and_validation(box, model):
+    true = _at_x(0.013)[0]
+    pts, nrm, _ = box.sample_surface(6, rng=4)
+    c = Contacts(pts, nrm).transform(true)
+    f = SMCFilter(model, 400, rng=0)
+    with pytest.raises(ValidationError, match="initialize"):
+        f.update(c)
+    b = f.localize(c, _x_region(box))
+    assert b.info["map_pose"][0, 3] == pytest.approx(0.013, abs=0.002)
+    assert f.contacts is c and f.results == [] and len(f.info["stages"]) == 1
+    assert f.update([]) is b                       # nothing new: the belief is unchanged
+    with pytest.raises(ValidationError, match="static"):
+        f.predict()
+    with pytest.raises(ValidationError, match="n_particles"):
+        SMCFilter(model, 5)
+    with pytest.raises(ValidationError, match="ess_fraction"):
+        SMCFilter(model, 100, ess_fraction=1.5)

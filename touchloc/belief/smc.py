@@ -98,6 +98,17 @@ class SMCFilter:
         self._belief = ParticleBelief(self.poses, self.log_w, region=self.region)
         return self._belief
 
+    def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
+        """Static use: the uniform prior over ``region`` updated once with ``contacts``."""
+        self.initialize(region)
+        return self.update(contacts)
+
+    def predict(self) -> None:
+        """Not available: the filter assumes a static object (every earlier measurement is
+        re-scored at the moved particles), so motion would make it wrong."""
+        raise ValidationError("SMCFilter tracks a static object and has no predict(); use ParticleFilter or "
+                              "ScalingSeries with dynamics= for a moving object")
+
     @property
     def belief(self) -> ParticleBelief | None:
         """The current ParticleBelief (None before :meth:`initialize`)."""
