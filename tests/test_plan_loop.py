@@ -1,4 +1,4 @@
-"""Touch likelihood (contacts and free space), the touch filter, candidates and the active loop."""
+"""Touch likelihood (contacts and free space), the SMC filter on touches, candidates and the active loop."""
 
 import warnings
 
@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from touchloc.belief import ParticleBelief, PoseRegion
+from touchloc.belief import ParticleBelief, PoseRegion, SMCFilter
 from touchloc.geometry import make_poses
-from touchloc.models import MeshObject, ProximityModel
+from touchloc.models import MeshObject, ProximityModel, TouchLikelihood
 from touchloc.planners import GuardedTouch, HandTouch, OneStepPlanner, RandomPlanner, simulate
 from touchloc.planners.candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
 from touchloc.planners.loop import SimulatedWorld, active_localization
 from touchloc.planners.metrics import add_s, expected_add_s
-from touchloc.planners.update import TouchFilter, TouchLikelihood
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +47,8 @@ def test_a_miss_is_negative_information(box, model):
     # boxes reaching x = 0.02 (centre > -0.01) would have stopped the probe: ruled out
     assert np.all(ll[xs > -0.005] < np.log(0.01))
     assert np.all(ll[xs < -0.015] > np.log(0.9))
-    f = TouchFilter(model, _x_region(box), 400, rng=1)
+    f = SMCFilter(model, 400, rng=1)
+    f.initialize(_x_region(box))
     b = f.update(res)
     x = b.poses[:, 0, 3]
     assert np.average(x < -0.005, weights=b.weights) > 0.97
@@ -59,7 +59,8 @@ def test_filter_localises_from_one_contact(box, model):
     world = SimulatedWorld(box, _at_x(0.013)[0], noise_pos=0.0005, noise_nor=0.02, rng=0)
     res = world.execute(GuardedTouch((0.3, 0, 0), (-1, 0, 0), 0.5))
     assert res[0].hit and res[0].contact.points[0, 0] == pytest.approx(0.043, abs=0.002)
-    f = TouchFilter(model, _x_region(box), 500, rng=2)
+    f = SMCFilter(model, 500, rng=2)
+    f.initialize(_x_region(box))
     b = f.update(res)
     x = b.poses[:, 0, 3]
     m = np.average(x, weights=b.weights)
@@ -177,17 +178,3 @@ def test_outputs_and_cli(tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 10_000
     html = (tmp_path / "t.html").read_text()
     assert "<canvas" in html and '"touches": [' in html and "ADD-S" in html
-
-
-def test_a_belief_estimator_can_drive_the_loop(box, model):
-    """EstimatorUpdater: re-localise with Scaling Series from all contacts and free space."""
-    from touchloc.planners.update import EstimatorUpdater
-
-    reg = _x_region(box)
-    up = EstimatorUpdater(model, reg, n_prior=300, rng=0)
-    world = SimulatedWorld(box, _at_x(-0.03)[0], noise_pos=0.0, noise_nor=0.0, rng=0)
-    b = up.update(world.execute(GuardedTouch((0.02, 0, 0.1), (0, 0, -1), 0.2)))   # a miss first
-    assert np.average(b.poses[:, 0, 3] < -0.005, weights=b.weights) > 0.97
-    b = up.update(world.execute(GuardedTouch((0.3, 0, 0), (-1, 0, 0), 0.5)))     # then a contact
-    x = np.average(b.poses[:, 0, 3], weights=b.weights)
-    assert x == pytest.approx(-0.03, abs=0.002)

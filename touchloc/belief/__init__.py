@@ -1,7 +1,10 @@
 """What we believe: pose regions, particle beliefs and the estimators that produce them.
 
 Static estimators have ``localize(contacts, region) -> ParticleBelief``; filters have
-``initialize(region)``, ``predict()``, ``update(contacts)`` and ``.belief``.
+``initialize(region)``, ``predict()``, ``update(contacts)`` and ``.belief``. Every filter's
+``update`` also takes the executed touches of an action (a list of
+``planners.TouchResult``): their contacts and the free space they swept, so any filter
+can drive ``planners.active_localization``.
 """
 
 from ._common import DegenerateBeliefWarning
@@ -14,9 +17,10 @@ from .particle_filter import ParticleFilter
 from .particles import RESAMPLERS, ParticleBelief, register_resampler, systematic_resample
 from .region import PoseRegion
 from .scaling_series import ScaleStep, ScalingSeries
+from .smc import SMCFilter
 
 __all__ = [
     "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
     "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
-    "ManifoldParticleFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
+    "ManifoldParticleFilter", "SMCFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
 ]

@@ -43,6 +43,62 @@ def check_contacts(contacts) -> Contacts:
     return contacts
 
 
+def _is_result(r) -> bool:
+    return all(hasattr(r, a) for a in ("contact", "touch", "travel"))
+
+
+def split_measurements(data):
+    """Contacts and executed touches of an update's data.
+
+    ``data`` is a :class:`~touchloc.models.Contacts`, an executed touch (anything with
+    ``.contact``, ``.touch`` and ``.travel``, like ``planners.TouchResult``), a list of
+    them, or None. Returns ``(contacts or None, list of results)``.
+    """
+    if data is None:
+        return None, []
+    if isinstance(data, Contacts):
+        return data, []
+    items = [data] if _is_result(data) else (list(data) if isinstance(data, (list, tuple)) else None)
+    if items is None or not all(_is_result(r) for r in items):
+        raise ValidationError("an update takes Contacts or executed touches (a list of objects with .contact, "
+                              f".touch and .travel, like planners.TouchResult), got {type(data).__name__}")
+    hits = [r.contact for r in items if r.contact is not None]
+    return (Contacts.concatenate(hits) if hits else None), items
+
+
+def touch_model(model, results, free_space=None, **kwargs):
+    """The free-space model of executed touches for a contact model (None without touches).
+
+    ``free_space`` is a :class:`~touchloc.models.FreeSpaceBase` subclass (default
+    :class:`~touchloc.models.RayStopModel`); its boundary softness defaults to
+    ``free_space.default_sigma(model)``.
+    """
+    from ..models import RayStopModel
+
+    if not results:
+        return None
+    cls = RayStopModel if free_space is None else free_space
+    kwargs.setdefault("sigma", cls.default_sigma(model))
+    return cls.from_results(model.obj, results, **kwargs)
+
+
+def measurement(model, data, *, free_space=None, **kwargs):
+    """What one filter update scores: ``(contacts or None, model)``.
+
+    Contacts alone give ``(contacts, model)`` unchanged (the update works as it always
+    did). Executed touches give their contacts and ``model + free space`` (or the free
+    space alone after a miss, with ``contacts`` None): the one place where every filter
+    turns touches into measurements.
+    """
+    contacts, results = split_measurements(data)
+    free = touch_model(model, results, free_space, **kwargs)
+    if free is None:
+        return check_contacts(contacts), model
+    if contacts is None or len(contacts) == 0:
+        return None, free
+    return contacts, model + free
+
+
 def finite_loglik(ll: np.ndarray) -> np.ndarray:
     ll = np.asarray(ll, dtype=float)
     if np.any(np.isnan(ll)):

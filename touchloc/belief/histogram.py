@@ -9,7 +9,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.special import logsumexp
 
 from ..errors import ValidationError
-from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate
+from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate, measurement
 from .particles import ParticleBelief
 from .region import PoseRegion
 
@@ -118,16 +118,27 @@ class HistogramFilter:
             lp = np.log(np.maximum(p, 0.0))
         self._log_p = lp - logsumexp(lp)
 
-    def update(self, contacts) -> ParticleBelief:
-        """Measurement update at every cell centre (eq. 42.9)."""
+    def update(self, contacts, *, model=None, free_space=None) -> ParticleBelief:
+        """Measurement update at every cell centre (eq. 42.9).
+
+        ``contacts`` is a :class:`~touchloc.models.Contacts` or the executed touches of an
+        action (their contacts and swept free space, as in
+        :meth:`ParticleFilter.update`); ``model`` replaces the filter's model for this
+        update only.
+        """
         if self._log_p is None:
             raise ValidationError("call initialize(region) first")
-        contacts = check_contacts(contacts)
-        ll = finite_loglik(self.model.log_likelihood(self._poses, contacts)).reshape(self.shape)
+        if model is None:
+            contacts, m = measurement(self.model, contacts, free_space=free_space)
+        else:
+            m = check_model(model)
+            contacts = check_contacts(contacts) if contacts is not None else None
+        ll = finite_loglik(m.log_likelihood(self._poses, contacts)).reshape(self.shape)
         lp = self._log_p + ll
         self._log_p = lp - logsumexp(lp)
         b = self.belief
-        flag_degenerate(b, float(ll.ravel()[np.argmax(lp)]), contacts)
+        if contacts is not None:
+            flag_degenerate(b, float(ll.ravel()[np.argmax(lp)]), contacts)
         return b
 
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:

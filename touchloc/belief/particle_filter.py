@@ -8,7 +8,7 @@ import numpy as np
 
 from .._util import as_rng
 from ..errors import ValidationError
-from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate
+from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate, measurement
 from .particles import ParticleBelief
 from .region import PoseRegion
 
@@ -81,18 +81,24 @@ class ParticleFilter:
         X = self.dynamics.sample(self.belief.poses, rng=self.rng)
         self.belief = self.belief.with_particles(X, self.belief.log_weights)
 
-    def update(self, contacts, *, model=None, resample: bool = True) -> ParticleBelief:
-        """Weight by the likelihood of the contacts; resample and roughen when the ESS drops.
+    def update(self, contacts, *, model=None, resample: bool = True, free_space=None) -> ParticleBelief:
+        """Weight by the likelihood of the new measurements; resample and roughen when the
+        ESS drops.
 
-        ``model`` replaces the filter's model for this update only, e.g.
-        ``proximity + FreeSpaceModel.from_results(obj, results)`` to add the free space a
-        touch swept, or a :class:`~touchloc.models.FreeSpaceModel` alone after a miss
-        (then ``contacts`` may be None).
+        ``contacts`` is a :class:`~touchloc.models.Contacts`, or the executed touches of
+        an action (a list of ``planners.TouchResult``): then their contacts and the free
+        space they swept (``free_space``, default :class:`~touchloc.models.RayStopModel`)
+        are scored together, and a miss alone updates the belief too. ``model`` replaces
+        the filter's model for this update only, e.g. ``proximity +
+        FreeSpaceModel.from_results(obj, results)`` (then ``contacts`` may be None).
         """
         self._require()
-        m = self.model if model is None else check_model(model)
-        if contacts is not None or model is None:
-            contacts = check_contacts(contacts)
+        if model is None:
+            contacts, m = measurement(self.model, contacts, free_space=free_space)
+        else:
+            m = check_model(model)
+            if contacts is not None:
+                contacts = check_contacts(contacts)
         ll = finite_loglik(m.log_likelihood(self.belief.poses, contacts))
         b = self.belief.with_particles(self.belief.poses, self.belief.log_weights + ll)
         if contacts is not None:

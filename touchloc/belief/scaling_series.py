@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from .._util import as_rng, progress
 from ..errors import ValidationError
 from ._common import (ball_volume, check_contacts, check_model, check_region, finite_loglik,
-                      flag_degenerate)
+                      flag_degenerate, measurement, split_measurements)
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -231,6 +231,7 @@ class ScalingSeries:
         self._region = check_region(region if self.rho is None else region.with_rho(self.rho), self.model)
         self.belief = None
         self._pending_predict = False
+        self._misses = []
 
     def predict(self) -> None:
         """Apply the dynamics at the next update (the prior becomes sum_m w_m p(X | X_m))."""
@@ -241,11 +242,45 @@ class ScalingSeries:
         if self.belief is not None:
             self._pending_predict = True
 
-    def update(self, contacts) -> ParticleBelief:
+    def update(self, contacts, *, free_space=None) -> ParticleBelief:
         """Measurement update: Scaling Series on the support of the predicted prior, weights
-        multiplied by the prior propagated from the previous particle set (ch. 42.1.4)."""
+        multiplied by the prior propagated from the previous particle set (ch. 42.1.4).
+
+        ``contacts`` is a :class:`~touchloc.models.Contacts` or the executed touches of an
+        action (their contacts and swept free space, see ``belief._common.measurement``).
+        Touches that miss before the first contact weight a sample of the region (so the
+        belief is defined for planning) and join the first contact's localisation.
+        """
         if self._region is None:
             raise ValidationError("call initialize(region) first")
+        _, results = split_measurements(contacts)
+        if self._misses or (results and self.belief is None):
+            # nothing localised yet: every touch so far is scored over the whole region
+            pending = self._misses + results
+            found, model = measurement(self.model, pending, free_space=free_space)
+            if not results:  # plain contacts after misses
+                found, model = check_contacts(contacts), self.model + model
+            contacts = found
+            if contacts is None:
+                self._misses = pending
+                X = self._region.sample(self.n_initial, rng=self.rng)
+                res = (self._region.volume() / len(X)) ** (1.0 / self._region.dim)
+                self.belief = ParticleBelief(X, finite_loglik(model.log_likelihood(X)), region=self._region,
+                                             resolution=res)
+                return self.belief
+            self._misses, self.belief = [], None
+        else:
+            contacts, model = measurement(self.model, contacts, free_space=free_space)
+        if contacts is None:  # a miss after localisation: reweight the particles
+            self.belief = self.belief.reweighted(finite_loglik(model.log_likelihood(self.belief.poses)))
+            return self.belief
+        own, self.model = self.model, model
+        try:
+            return self._update(contacts)
+        finally:
+            self.model = own
+
+    def _update(self, contacts) -> ParticleBelief:
         prev = self.belief
         if prev is None:
             self.belief = self.localize(contacts, self._region)

@@ -3,7 +3,7 @@
 from .base import MeasurementModel, SumModel
 from .contacts import Contacts
 from .dynamics import GaussianDynamics
-from .freespace import FreeSpaceModel
+from .freespace import FreeSpaceBase, FreeSpaceModel, RayStopModel, TouchLikelihood, ray_stops
 from .integrated import IntegratedProximityModel
 from .mesh import MeshObject, MeshRepairWarning, MeshUnitsWarning
 from .proximity import ProximityModel, contacts_in_object_frame
@@ -11,5 +11,6 @@ from .proximity import ProximityModel, contacts_in_object_frame
 __all__ = [
     "Contacts", "MeshObject", "MeshRepairWarning", "MeshUnitsWarning", "MeasurementModel",
     "SumModel", "ProximityModel", "IntegratedProximityModel", "FreeSpaceModel",
+    "FreeSpaceBase", "RayStopModel", "TouchLikelihood", "ray_stops",
     "GaussianDynamics", "contacts_in_object_frame",
 ]

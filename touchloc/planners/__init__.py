@@ -14,7 +14,6 @@ from .loop import ActiveResult, SimulatedWorld, Step, active_localization
 from .metrics import add_s, best_pose, expected_add_s
 from .scenarios import Scenario, make_scenario
 from .simulate import Outcomes, execute, simulate
-from .update import EstimatorUpdater, TouchFilter, TouchLikelihood
 from .utilities import KLDivergence, NegEntropy, TaskSuccess, Utility
 
 __all__ = [
@@ -22,6 +21,21 @@ __all__ = [
     "fingers_of", "Outcomes", "simulate", "execute", "Plan", "OneStepPlanner", "TwoStepPlanner",
     "RandomPlanner", "Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "CandidateGenerator",
     "world_pool", "relative_pool", "hand_pool", "active_localization", "SimulatedWorld", "ActiveResult", "Step",
-    "add_s", "best_pose", "expected_add_s", "Scenario", "make_scenario", "TouchFilter", "TouchLikelihood",
-    "EstimatorUpdater", "IdentityPlanner",
+    "add_s", "best_pose", "expected_add_s", "Scenario", "make_scenario", "IdentityPlanner",
 ]
+
+_DEPRECATED = {"TouchFilter": "touchloc.belief.SMCFilter", "TouchLikelihood": "touchloc.models.TouchLikelihood",
+               "EstimatorUpdater": "a touchloc.belief filter as active_localization's updater"}
+
+
+def __getattr__(name):
+    # old names of the estimator and the touch likelihood, importable for one more release
+    if name in _DEPRECATED:
+        import warnings
+
+        from . import update
+
+        warnings.warn(f"touchloc.planners.{name} is deprecated and will be removed in the next release; use "
+                      f"{_DEPRECATED[name]}", DeprecationWarning, stacklevel=2)
+        return getattr(update, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

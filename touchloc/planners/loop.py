@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
+from ..belief import ParticleBelief, SMCFilter
 from ..errors import ValidationError
 from .actions import TouchResult
 from .metrics import add_s, best_pose, expected_add_s
 from .simulate import execute
-from .update import TouchFilter
 
 __all__ = ["SimulatedWorld", "Step", "ActiveResult", "active_localization"]
 
@@ -97,6 +97,15 @@ class ActiveResult:
         return "\n".join(lines)
 
 
+def _belief_of(updater):
+    """The updater's belief, or None when it has none yet (not initialised, or a filter
+    such as Scaling Series that has no belief before its first contact)."""
+    try:
+        return updater.belief
+    except ValidationError:
+        return None
+
+
 def active_localization(world, model, region, planner, candidates, *, n_particles: int = 2000,
                         max_touches: int = 20, confidence: float = 0.003, min_touches: int = 1,
                         updater=None, rng=None, progress_bar=None, keep_plans: bool = False,
@@ -117,12 +126,17 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
         A fixed list of actions, or ``candidates(belief, rng) -> list`` called each step
         (e.g. a :class:`~touchloc.planners.candidates.CandidateGenerator`).
     n_particles : int
-        Particles of the default updater (:class:`TouchFilter`).
+        Particles of the default updater (:class:`~touchloc.belief.SMCFilter`), and of the
+        prior sample planned on while an updater has no belief yet.
     max_touches : int
     confidence : float
         Stop when the belief's expected ADD-S of its MAP pose is below this (m).
-    updater : object, optional
-        With ``belief`` and ``update(results) -> belief``; default a TouchFilter.
+    updater : filter, optional
+        Any estimator with the filter interface: ``update(results)`` taking the executed
+        touches of an action (a list of TouchResult) and ``.belief``; e.g.
+        :class:`~touchloc.belief.SMCFilter` (the default), ``ScalingSeries``,
+        ``ParticleFilter`` or ``HistogramFilter``. If it has ``initialize`` and no belief
+        yet, the loop initialises it over ``region``.
     rng : None, int or Generator
     keep_plans : bool
         Keep every Plan (with its candidates' scores) in the steps.
@@ -140,11 +154,26 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     rng = as_rng(rng)
     obj = model.obj
     if updater is None:
-        updater = TouchFilter(model, region, n_particles, rng=rng)
+        updater = SMCFilter(model, n_particles, rng=rng)
+    if not hasattr(updater, "update"):
+        raise ValidationError(f"updater must have update(results) and .belief, got {type(updater).__name__}")
+    if _belief_of(updater) is None and hasattr(updater, "initialize"):
+        updater.initialize(region)
+    prior = None
     truth = getattr(world, "true_pose", None)
 
+    def current():
+        nonlocal prior
+        b = _belief_of(updater)
+        if b is not None:
+            return b
+        if prior is None:  # e.g. Scaling Series before its first contact: plan on the region's prior
+            reg = region if region.rho is not None else region.with_rho(obj.radius)
+            prior = ParticleBelief(reg.sample(int(n_particles), rng=rng), region=reg)
+        return prior
+
     def record(i, action, results, t_plan, t_upd, plan):
-        b = updater.belief
+        b = current()
         T = best_pose(b)
         err = add_s(obj, T, truth) if truth is not None else float("nan")
         try:
@@ -160,7 +189,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     confident = False
     it = progress(range(1, int(max_touches) + 1), desc="touches", enabled=progress_bar)
     for i in it:
-        b = updater.belief
+        b = current()
         cands = candidates(b, rng) if callable(candidates) else candidates
         t0 = time.perf_counter()
         plan = planner.plan(b, cands, rng=rng)
@@ -178,5 +207,5 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
         if i >= min_touches and step.expected_error < confidence:
             confident = True
             break
-    return ActiveResult(steps, updater.belief, confident, truth,
+    return ActiveResult(steps, current(), confident, truth,
                         {"planner": getattr(planner, "name", type(planner).__name__)})

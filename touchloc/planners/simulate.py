@@ -9,13 +9,10 @@ import numpy as np
 from .._util import as_poses
 from ..errors import ValidationError
 from ..models import Contacts, MeshObject
+from ..models.freespace import _ray_offsets  # one definition of the 17-ray probe sphere
 from .actions import GuardedTouch, TouchResult, fingers_of
 
 __all__ = ["Outcomes", "simulate", "flatten_actions", "execute"]
-
-#: offsets (in units of the probe radius) of the rays that approximate a swept sphere:
-#: the centre ray, a ring at half the radius and a ring at the full radius.
-_RING = 8
 
 
 def flatten_actions(actions):
@@ -76,19 +73,6 @@ class Outcomes:
     @property
     def n_actions(self) -> int:
         return int(self.owner[-1]) + 1 if len(self.owner) else 0
-
-
-def _ray_offsets(direction, radius):
-    """(R, 3) offsets perpendicular to ``direction`` and (R,) their lengths."""
-    d = direction / np.linalg.norm(direction)
-    a = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(d, a)
-    u /= np.linalg.norm(u)
-    v = np.cross(d, u)
-    ang = np.linspace(0, 2 * np.pi, _RING, endpoint=False)
-    ring = np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v
-    offs = np.concatenate([np.zeros((1, 3)), 0.5 * radius * ring, radius * ring])
-    return offs, np.linalg.norm(offs, axis=1)
 
 
 def simulate(obj: MeshObject, poses, actions) -> Outcomes:
