@@ -27,7 +27,7 @@ from ..errors import ValidationError
 from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
-__all__ = ["PLANNERS", "ExplorationRun", "box_pool", "lattice_pool", "explore", "ray_information"]
+__all__ = ["PLANNERS", "ExplorationRun", "box_pool", "hand_pool", "lattice_pool", "explore", "ray_information"]
 
 PLANNERS = ("random", "lattice", "uncertainty")
 
@@ -64,6 +64,41 @@ def box_pool(bounds, n: int = 60, *, rng=None, margin: float = 0.02, probe_radiu
     O = c + R * u
     tgt = lo + rng.random((n, 3)) * (hi - lo)
     return [GuardedTouch(O[i], tgt[i] - O[i], 2 * R, probe_radius, name=f"random {i}") for i in range(n)]
+
+
+def hand_pool(bounds, n: int = 20, *, fingers: int = 3, rng=None, margin: float = 0.02,
+              probe_radius: float = 0.0, planar: bool = False) -> list:
+    """Hands closing on the box: ``fingers`` touches spread evenly in a plane through a
+    random point near the box centre, all moving towards it at once.
+
+    ``planar`` keeps the closing planes horizontal (a hand grasping an object on a table).
+
+    Returns
+    -------
+    list of HandTouch
+    """
+    from ..planners import HandTouch
+
+    lo, hi = as_bounds(bounds)
+    n = _as_count(n, "n")
+    fingers = _as_count(fingers, "fingers", 16)
+    rng = as_rng(rng)
+    c0, R = _reach(lo, hi, margin)
+    out = []
+    for i in range(n):
+        c = c0 + rng.uniform(-0.25, 0.25, 3) * (hi - lo)
+        a = np.array([0.0, 0.0, 1.0]) if planar else rng.normal(size=3)
+        a /= np.linalg.norm(a)
+        e1 = np.cross(a, rng.normal(size=3))
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(a, e1)
+        phi = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(fingers) / fingers
+        touches = []
+        for f in phi:
+            u = np.cos(f) * e1 + np.sin(f) * e2
+            touches.append(GuardedTouch(c + R * u, -u, 2 * R, probe_radius))
+        out.append(HandTouch(tuple(touches), name=f"hand {i}"))
+    return out
 
 
 def lattice_pool(bounds, n: int, *, margin: float = 0.02, probe_radius: float = 0.0) -> list:
@@ -157,7 +192,8 @@ class ExplorationRun:
 
 
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
-            smap: ShapeMap | None = None, n_candidates: int = 60, probe_radius: float = 0.0,
+            smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
+            fingers: int = 1,
             rng=None, callback=None, progress_bar=None, **map_kwargs) -> ExplorationRun:
     """Map an unknown object by touching it ``n_touches`` times.
 
@@ -174,8 +210,17 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         Map representation (ignored when ``smap`` is given).
     smap : ShapeMap, optional
         Continue an existing map.
+    slam : TactileSLAM, optional
+        Map an object that moves: every step's touches go to ``slam.update`` (with the
+        world's ``odometry()`` when it has one), candidates are scored against
+        ``slam.map`` at the current pose estimate, and ``run.map`` is the SLAM map (in
+        the object frame). ``bounds`` is then the world box the touches aim into.
     n_candidates : int
         Touches scored per step by the ``"uncertainty"`` planner.
+    fingers : int
+        1: single guarded touches. More: every action is a hand closing with that many
+        fingers at once (:func:`hand_pool`); several contacts of one instant pin down a
+        moving object's pose far better than one.
     rng : None, int or Generator
     callback : callable, optional
         ``callback(run, step)`` after every touch (e.g. to evaluate the map).
@@ -193,11 +238,23 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     n_touches = _as_count(n_touches, "n_touches")
     n_candidates = _as_count(n_candidates, "n_candidates", 10_000)
     rng = as_rng(rng)
-    if smap is None:
+    if slam is not None:
+        from .slam import TactileSLAM, transform_results
+
+        if not isinstance(slam, TactileSLAM):
+            raise ValidationError(f"slam must be a TactileSLAM, got {type(slam).__name__}")
+        smap = slam.map
+        bounds = as_bounds(bounds)
+    elif smap is None:
         smap = ShapeMap(bounds, method=method, **map_kwargs)
     elif not isinstance(smap, ShapeMap):
         raise ValidationError(f"smap must be a ShapeMap, got {type(smap).__name__}")
-    bounds = (smap.lo, smap.hi)
+    if slam is None:
+        bounds = (smap.lo, smap.hi)
+    odometry = getattr(world, "odometry", None)
+    fingers = _as_count(fingers, "fingers", 16)
+    if planner == "lattice" and fingers != 1:
+        raise ValidationError("the lattice planner makes single touches: use fingers=1")
     lattice = lattice_pool(bounds, n_touches, probe_radius=probe_radius) if planner == "lattice" else None
     run = ExplorationRun(smap, [])
     for i in progress(range(n_touches), total=n_touches, desc="touches", enabled=progress_bar):
@@ -206,10 +263,20 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         if planner == "lattice":
             action = lattice[i]
         elif planner == "random":
-            action = box_pool(bounds, 1, rng=rng, probe_radius=probe_radius)[0]
+            action = (box_pool(bounds, 1, rng=rng, probe_radius=probe_radius)[0] if fingers == 1 else
+                      hand_pool(bounds, 1, fingers=fingers, rng=rng, probe_radius=probe_radius)[0])
         else:
-            cands = box_pool(bounds, n_candidates, rng=rng, probe_radius=probe_radius)
-            info = ray_information(smap, cands)
+            if fingers == 1:
+                cands = box_pool(bounds, n_candidates, rng=rng, probe_radius=probe_radius)
+                flat, owner = cands, np.arange(len(cands))
+            else:
+                cands = hand_pool(bounds, max(1, n_candidates // fingers), fingers=fingers, rng=rng,
+                                  probe_radius=probe_radius)
+                flat = [t for h in cands for t in h.touches]
+                owner = np.repeat(np.arange(len(cands)), fingers)
+            scored = flat if slam is None else [r.touch for r in transform_results(
+                [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.pose))]
+            info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
             k = int(np.argmax(info))
             action, score = cands[k], float(info[k])
         t1 = time.perf_counter()
@@ -217,7 +284,10 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         if not isinstance(results, (list, tuple)) or not all(isinstance(r, TouchResult) for r in results):
             raise ValidationError("world.execute must return a list of TouchResult")
         t2 = time.perf_counter()
-        smap.update(results)
+        if slam is None:
+            smap.update(results)
+        else:
+            slam.update(results, odometry=odometry() if callable(odometry) else None)
         t3 = time.perf_counter()
         run.results.extend(results)
         step = dict(touch=i + 1, hits=sum(r.hit for r in results), contacts=smap.n_contacts, score=score,

@@ -268,7 +268,13 @@ class ShapeMap:
             self._free_c = np.concatenate([self._free_c] + val)
 
     def _activate_free(self, rounds: int = 2, per_round: int = 64):
-        """Add free-space observations where the mean says "inside" (most violated first)."""
+        """Add free-space observations where the mean says "inside" (most violated first).
+
+        Only a contradiction is corrected: f(x) = c is a lower bound in truth (a swept
+        point may lie far from the surface), so observing it where the map already agrees
+        would pull the surface towards the swept path. (Tried: activating wherever
+        mean - 2 sd < c made random-touch maps of the cereal box 2.5x worse.)
+        """
         for _ in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
                 return
@@ -495,9 +501,9 @@ def _coarse_to_fine(mean, axes, h, factor: int = 4):
     """Evaluate ``mean`` on the full grid only near its zero level set.
 
     A grid ``factor`` times coarser is evaluated everywhere; fine points are evaluated
-    exactly where the coarse value is within reach of zero (|f| below the coarse cell's
-    diagonal, f being about a distance), and trilinearly interpolated elsewhere, where
-    only the sign matters to marching cubes.
+    exactly where the interpolated coarse value is within a few fine cells of zero (f is
+    about a distance), and trilinearly interpolated elsewhere, where only the sign
+    matters to marching cubes.
     """
     from scipy.interpolate import RegularGridInterpolator
 
@@ -509,7 +515,9 @@ def _coarse_to_fine(mean, axes, h, factor: int = 4):
     interp = RegularGridInterpolator(cax, cv)
     F = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     fv = interp(F)
-    band = np.abs(fv) < 1.5 * factor * h * np.sqrt(3)
+    # trilinear interpolation of a function that varies on the kernel's length scale errs
+    # by far less than a coarse cell; 2.5 fine cells of margin keeps every sign right
+    band = np.abs(fv) < 2.5 * h + 0.25 * factor * h
     if np.any(band):
         fv[band] = mean(F[band])
     return fv.reshape(n)
