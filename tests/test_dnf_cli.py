@@ -45,4 +45,4 @@ def test_dnf_figure_rejects_unknown_object():
     from touchloc.errors import ValidationError
 
     with pytest.raises(ValidationError, match="unknown object"):
-        run(["dnf-figure", "--object", "5-gon"])
+        run(["dnf-figure", "--object", "7-gon"])
