@@ -20,38 +20,58 @@ def test_normalised_code_does_not_grow_with_the_number_of_normals():
     assert not np.any(population_code([], 360, 4 * DEG, 1.0, normalize=True))
 
 
-def _mean_stimulus(k, rng):
-    """Window-averaged input of a tracker fed k noisy normals per sample of one side."""
-    tr = OrientationTracker(correct=False)
+def test_expected_code_is_the_same_for_1_and_40_normals_per_sample():
+    rng = np.random.default_rng(0)
+    codes = {k: np.mean([population_code(rng.normal(1.0, 3 * DEG, k), 360, 4 * DEG, 1.0, normalize=True)
+                         for _ in range(400)], axis=0) for k in (1, 40)}
+    # same expected input (the tuning curve smoothed by the 3 deg noise: peak 4/5 = 0.8)
+    assert codes[1].max() == pytest.approx(codes[40].max(), rel=0.05)
+    assert codes[40].max() == pytest.approx(0.8, rel=0.05)
+    sites = np.arange(360) * DEG
+    assert all(abs(sites[np.argmax(c)] - 1.0) < 2 * DEG for c in codes.values())
+
+
+def _windowed(k, rng):
+    tr = OrientationTracker(correct=False, input_window=8.0)
     rng = np.random.default_rng(rng)
     for _ in range(60):
         tr.step(rng.normal(1.0, 3 * DEG, k), 0.0)
     return tr._evidence / max(tr._weight, 1.0)
 
 
-def test_evidence_is_the_same_for_1_and_40_normals_per_sample():
-    e1 = np.mean([_mean_stimulus(1, s) for s in range(8)], axis=0)
-    e40 = _mean_stimulus(40, 0)
-    # same expected input: peak heights within 10 % and both at the side (1 rad)
-    assert e1.max() == pytest.approx(e40.max(), rel=0.1)
-    sites = np.arange(360) * DEG
-    assert abs(sites[np.argmax(e1)] - 1.0) < 3 * DEG and abs(sites[np.argmax(e40)] - 1.0) < 3 * DEG
+def test_evidence_window_averages_to_the_same_input_for_1_and_40_normals():
+    e1 = np.mean([_windowed(1, s) for s in range(6)], axis=0)
+    e40 = _windowed(40, 0)
+    assert e1.max() == pytest.approx(e40.max(), rel=0.15)
 
 
-def test_a_sample_without_contact_is_valid_and_does_not_dilute_the_evidence():
+def test_a_sample_without_contact_is_valid():
     tr = OrientationTracker()
     for _ in range(10):
         tr.step([0.5, 0.5 + np.pi], 0.0)
-    before = tr._evidence / tr._weight
+    u = tr.surface.u.copy()
     assert tr.step([], 0.0) == pytest.approx(tr.orientation)
-    after = tr._evidence / max(tr._weight, 1.0)
-    np.testing.assert_allclose(after, before, rtol=1e-9)
-    for _ in range(40):                         # a long gap: the evidence fades
-        tr.step(np.empty(0), 0.0)
-    assert (tr._evidence / max(tr._weight, 1.0)).max() < 0.01 * before.max()
+    assert tr.surface.u.max() < u.max()           # no input: the surface peak relaxes
+    mem = tr.memory.copy()
+    tr.step(np.empty(0), 0.0)
+    assert np.abs(tr.memory - mem).max() < 0.05   # the memory keeps its shape
     # the baselines accept it too
     assert HistogramEstimator().step([], 0.3) == 0.3
     ParticleOrientationEstimator(20, rng=0).step([], 0.0)
+
+
+def test_with_a_window_an_empty_sample_does_not_dilute_the_evidence():
+    tr = OrientationTracker(input_window=4.0)
+    for _ in range(10):
+        tr.step([0.5, 0.5 + np.pi], 0.0)
+    before = tr._evidence / tr._weight
+    tr.step([], 0.0)
+    np.testing.assert_allclose(tr._evidence / max(tr._weight, 1.0), before, rtol=1e-9)
+    for _ in range(40):                         # a long gap: the evidence fades
+        tr.step(np.empty(0), 0.0)
+    assert (tr._evidence / max(tr._weight, 1.0)).max() < 0.01 * before.max()
+    with pytest.raises(ValidationError, match="input_window"):
+        OrientationTracker(input_window=-1.0)
 
 
 def test_generator_default_is_the_dense_setting_and_knobs_validate():

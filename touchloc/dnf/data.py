@@ -399,8 +399,11 @@ def load_recording(path) -> RotationDataset:
         if c not in cols:
             raise ValidationError(f"{path.name} lacks column {c!r}; header is {cols}")
     try:
-        rows = np.array([[float(r[c]) if (c != "normal_angle" or r[c].strip()) else np.nan for c in cols]
-                         for r in reader], dtype=np.float64)
+        records = list(reader)
+        # an empty normal_angle marks a sample without contact
+        has = np.array([bool((r["normal_angle"] or "").strip()) for r in records], dtype=bool)
+        rows = np.array([[float(r[c]) if (c != "normal_angle" or h) else 0.0 for c in cols]
+                         for r, h in zip(records, has)], dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"{path.name}: every value must be a number: {exc}") from None
     col = {c: rows[:, i] for i, c in enumerate(cols)}
@@ -413,6 +416,5 @@ def load_recording(path) -> RotationDataset:
         raise ValidationError(f"{path.name}: rows of one sample (same time) must share the odometry")
     truth = col["true_orientation"][first] if "true_orientation" in col else None
     n_surf = int(meta["n_surfaces"]) if "n_surfaces" in meta else None
-    has = ~np.isnan(col["normal_angle"])          # an empty normal_angle: a sample without contact
     return RotationDataset(t[first], odo[first], col["normal_angle"][has], sample_index[has], true_orientation=truth,
                            n_surfaces=n_surf, name=meta.get("name", path.stem))
