@@ -93,9 +93,8 @@ def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad
     out = np.empty_like(base)
     for i, b in enumerate(blobs):
         pad = kin.pads[b.matrix]
-        _, across = pad.local_coordinates(b.centroid[0], b.centroid[1])
-        _, centre = pad.local_coordinates((pad.cells_x - 1) / 2.0, b.centroid[1])
-        phi = float(across - centre) / pad_radius
+        _, across = pad.local_coordinates(b.centroid[0], b.centroid[1])   # from the centre line
+        phi = float(across) / pad_radius
         _, _, k, n_pad = kin.pad_frame(angles, b.matrix)
         # the pad's outward normal turns towards +k across a convex pad; the object's is minus it
         v = -(np.cos(phi) * n_pad + np.sin(phi) * k)
