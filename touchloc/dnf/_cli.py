@@ -14,7 +14,7 @@ def register(sub) -> None:
                                    "on the same rotation data sets; print the side counts and orientation errors "
                                    "and save the plots.")
     p.add_argument("--objects", nargs="+", default=["6-gon", "8-gon", "round"],
-                   help="simulated objects (6-gon, 8-gon, round)")
+                   help="simulated objects (4-gon, 5-gon, 6-gon, 8-gon, round)")
     p.add_argument("--datasets", type=int, default=5, help="simulated data sets per object (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated data sets")
     p.add_argument("--recording", nargs="+", metavar="FILE",
@@ -27,7 +27,7 @@ def register(sub) -> None:
     f = sub.add_parser("dnf-figure", help="seed 000 Fig. 5: histogram, uncorrected and corrected memory over time",
                        description="Plot the accumulated histogram, the uncorrected memory trace and the corrected "
                                    "memory trace of one data set over time, as in seed 000, Fig. 5.")
-    f.add_argument("--object", default="6-gon", help="simulated object (6-gon, 8-gon, round)")
+    f.add_argument("--object", default="6-gon", help="simulated object (4-gon, 5-gon, 6-gon, 8-gon, round)")
     f.add_argument("--dataset", type=int, default=5, help="which simulated data set, 1-based (default 5)")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--recording", metavar="FILE", help="a recorded data set instead (.csv or .npz)")
