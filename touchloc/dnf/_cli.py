@@ -20,6 +20,11 @@ def register(sub) -> None:
     p.add_argument("--recording", nargs="+", metavar="FILE",
                    help="use recorded data sets (.csv or .npz, see docs/dnf.md) instead of simulated ones")
     p.add_argument("--particles", type=int, default=400, help="particles of the particle filter")
+    p.add_argument("--normals", type=int, metavar="K",
+                   help="simulate K blob normals per finger and sample from the curved pad (1..40), as a real "
+                        "hand gives them, instead of the dense default")
+    p.add_argument("--noise", type=float, default=None, metavar="DEG", help="angular noise of each normal, deg")
+    p.add_argument("--drop", type=float, default=0.0, help="fraction of samples without contact (default 0)")
     p.add_argument("--out", default="dnf_compare", help="directory for the PNG plots (default dnf_compare)")
     p.add_argument("--no-plots", action="store_true", help="print the tables only")
     p.set_defaults(func=run_compare)
@@ -54,7 +59,14 @@ def run_compare(args) -> int:
                           plot_step_time, plot_surface_counts, summary_table)
     from .data import standard_datasets
 
-    sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed)
+    knobs = {}
+    if args.normals is not None:
+        knobs.update(normals_per_contact=args.normals, normal_source="pad")
+    if args.noise is not None:
+        knobs["noise"] = float(np.radians(args.noise))
+    if args.drop:
+        knobs["drop"] = args.drop
+    sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)
     n = sum(len(v) for v in sets.values())
     print(f"{n} data sets: " + ", ".join(f"{k} x {len(v)}" for k, v in sets.items()))
     results = compare(sets, default_estimators(particles=args.particles, rng=args.seed))
