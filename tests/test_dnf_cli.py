@@ -45,4 +45,15 @@ def test_dnf_figure_rejects_unknown_object():
     from touchloc.errors import ValidationError
 
     with pytest.raises(ValidationError, match="unknown object"):
-        run(["dnf-figure", "--object", "5-gon"])
+        run(["dnf-figure", "--object", "7-gon"])
+
+
+def test_compare_dnf_on_sparse_pad_normals(capsys):
+    rc = run(["compare-dnf", "--objects", "4-gon", "--datasets", "1", "--particles", "50", "--normals", "2",
+              "--noise", "2", "--drop", "0.1", "--no-plots"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "| 4-gon (4 sides) | DNF, corrected |" in out
+    from touchloc.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="normals_per_contact"):
+        run(["compare-dnf", "--objects", "4-gon", "--datasets", "1", "--normals", "41", "--no-plots"])

@@ -106,8 +106,9 @@ def test_loader_rejects_missing_file_and_bad_suffix(tmp_path):
 
 
 def test_dataset_validation():
-    with pytest.raises(ValidationError, match="sample 1 has none"):
-        RotationDataset([0, 1], [0, 0], [0.1], [0])
+    # a sample without normals (no contact) is valid
+    empty = RotationDataset([0, 1], [0, 0], [0.1], [0])
+    assert empty.angles(1).size == 0 and [a.size for a, _ in empty.samples()] == [1, 0]
     with pytest.raises(ValidationError, match="odometry must have shape"):
         RotationDataset([0, 1], [0], [0.1, 0.2], [0, 1])
     with pytest.raises(ValidationError, match="n_sides"):

@@ -18,7 +18,6 @@ def datasets():
 
 @pytest.mark.parametrize("bad, match", [
     ([np.nan, 0.1], "entry 0 is nan"),
-    ([], "at least one angle"),
     (np.zeros((2, 3)), r"1-D array \(K,\)"),
     ("abc", "angles in rad"),
 ])

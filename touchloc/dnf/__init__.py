@@ -8,7 +8,7 @@ Rao-Blackwellised particle filter (:class:`ParticleOrientationEstimator`), a gen
 the seed's experiment and a loader for recorded data complete the comparison.
 """
 
-from .data import (OBJECTS, RotationDataset, generate_rotation_dataset, load_recording, save_recording,
+from .data import (OBJECTS, SEED_FAITHFUL, RotationDataset, generate_rotation_dataset, load_recording, save_recording,
                    standard_datasets)
 from .estimators import HistogramEstimator, count_surfaces, normalize_max, surface_peaks
 from .fields import (Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, diagonal_sum, expand,
@@ -24,5 +24,5 @@ __all__ = [
     "Field1D", "Field2D", "FieldParams", "MemoryTrace", "sigmoid", "lateral_kernel", "circular_convolve",
     "expand", "diagonal_sum",
     "RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording", "save_recording",
-    "OBJECTS",
+    "OBJECTS", "SEED_FAITHFUL",
 ]

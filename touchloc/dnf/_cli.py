@@ -14,12 +14,17 @@ def register(sub) -> None:
                                    "on the same rotation data sets; print the side counts and orientation errors "
                                    "and save the plots.")
     p.add_argument("--objects", nargs="+", default=["6-gon", "8-gon", "round"],
-                   help="simulated objects (6-gon, 8-gon, round)")
+                   help="simulated objects (4-gon, 5-gon, 6-gon, 8-gon, round)")
     p.add_argument("--datasets", type=int, default=5, help="simulated data sets per object (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated data sets")
     p.add_argument("--recording", nargs="+", metavar="FILE",
                    help="use recorded data sets (.csv or .npz, see docs/dnf.md) instead of simulated ones")
     p.add_argument("--particles", type=int, default=400, help="particles of the particle filter")
+    p.add_argument("--normals", type=int, metavar="K",
+                   help="simulate K blob normals per finger and sample from the curved pad (1..40), as a real "
+                        "hand gives them, instead of the dense default")
+    p.add_argument("--noise", type=float, default=None, metavar="DEG", help="angular noise of each normal, deg")
+    p.add_argument("--drop", type=float, default=0.0, help="fraction of samples without contact (default 0)")
     p.add_argument("--out", default="dnf_compare", help="directory for the PNG plots (default dnf_compare)")
     p.add_argument("--no-plots", action="store_true", help="print the tables only")
     p.set_defaults(func=run_compare)
@@ -27,7 +32,7 @@ def register(sub) -> None:
     f = sub.add_parser("dnf-figure", help="seed 000 Fig. 5: histogram, uncorrected and corrected memory over time",
                        description="Plot the accumulated histogram, the uncorrected memory trace and the corrected "
                                    "memory trace of one data set over time, as in seed 000, Fig. 5.")
-    f.add_argument("--object", default="6-gon", help="simulated object (6-gon, 8-gon, round)")
+    f.add_argument("--object", default="6-gon", help="simulated object (4-gon, 5-gon, 6-gon, 8-gon, round)")
     f.add_argument("--dataset", type=int, default=5, help="which simulated data set, 1-based (default 5)")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--recording", metavar="FILE", help="a recorded data set instead (.csv or .npz)")
@@ -54,7 +59,14 @@ def run_compare(args) -> int:
                           plot_step_time, plot_surface_counts, summary_table)
     from .data import standard_datasets
 
-    sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed)
+    knobs = {}
+    if args.normals is not None:
+        knobs.update(normals_per_contact=args.normals, normal_source="pad")
+    if args.noise is not None:
+        knobs["noise"] = float(np.radians(args.noise))
+    if args.drop:
+        knobs["drop"] = args.drop
+    sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)
     n = sum(len(v) for v in sets.values())
     print(f"{n} data sets: " + ", ".join(f"{k} x {len(v)}" for k, v in sets.items()))
     results = compare(sets, default_estimators(particles=args.particles, rng=args.seed))

@@ -16,7 +16,7 @@ CSV (long format, one row per contact normal; ``#`` lines are comments)::
     ...
 
 Rows with the same ``time`` form one sample (they must be consecutive and share the
-odometry). Angles are in radians. ``true_orientation`` (optional) is the ground truth,
+odometry). A sample without contact is one row with an empty ``normal_angle``. Angles are in radians. ``true_orientation`` (optional) is the ground truth,
 used only for error plots.
 
 NPZ: arrays ``time (T,)``, ``odometry (T,)``, ``normal_angles (M,)`` and
@@ -37,12 +37,12 @@ from .._util import as_rng
 from ..errors import ValidationError
 
 __all__ = ["RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording",
-           "save_recording", "OBJECTS"]
+           "save_recording", "OBJECTS", "SEED_FAITHFUL"]
 
 TWO_PI = 2.0 * np.pi
 
 #: the three objects of seed 000, section IV: number of flat sides (0: round cylinder)
-OBJECTS = {"6-gon": 6, "8-gon": 8, "round": 0}
+OBJECTS = {"6-gon": 6, "8-gon": 8, "round": 0, "4-gon": 4, "5-gon": 5}
 
 
 @dataclass
@@ -58,7 +58,8 @@ class RotationDataset:
     normal_angles : (M,) float
         All contact-normal angles, rad, world frame.
     sample_index : (M,) int
-        Sample each normal belongs to (non-decreasing, every sample has at least one).
+        Sample each normal belongs to (non-decreasing). A sample may have none (no
+        contact, or a dropped sample): it still carries its time and odometry.
     true_orientation : (T,) float or None
         Ground-truth rotation (simulated data), rad.
     n_surfaces : int or None
@@ -101,9 +102,6 @@ class RotationDataset:
         counts = np.bincount(self.sample_index, minlength=T) if self.sample_index.size else np.zeros(T, int)
         if self.sample_index.size and (self.sample_index[0] < 0 or self.sample_index[-1] >= T):
             raise ValidationError(f"sample_index must lie in [0, {T - 1}]")
-        if np.any(counts[:T] == 0):
-            raise ValidationError(f"every sample needs at least one normal angle; sample "
-                                  f"{int(np.flatnonzero(counts[:T] == 0)[0])} has none")
         if self.true_orientation is not None:
             self.true_orientation = np.asarray(self.true_orientation, dtype=np.float64)
             if self.true_orientation.shape != (T,):
@@ -126,10 +124,28 @@ class RotationDataset:
                 f"{np.degrees(self.odometry[-1] - self.odometry[0]):.0f} deg odometry)")
 
 
+#: settings of :func:`generate_rotation_dataset` close to a real SDH-2 with DSACON32m pads
+#: (seed 000, II and IV-A): one to two blobs per finger and sample, each giving the normal of
+#: the finger's curved pad at the blob centroid, 3 degrees of further angular noise and one
+#: sample in ten without contact.
+SEED_FAITHFUL = dict(normals_per_contact=(1, 2), noise=np.radians(3.0), drop=0.1, normal_source="pad")
+
+
+def _count(spec, name):
+    """``normals_per_contact`` as a (lo, hi) int range with 1 <= lo <= hi <= 40."""
+    lo, hi = (spec, spec) if np.isscalar(spec) else tuple(spec)
+    if int(lo) != lo or int(hi) != hi or not 1 <= lo <= hi <= 40:
+        raise ValidationError(f"{name} must be an int or an (lo, hi) int range within 1..40, got {spec!r}")
+    return int(lo), int(hi)
+
+
 def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz=(2.0, 3.0),
                               diameter: float = 0.04, under_estimate=(0.04, 0.08),
                               slip_std: float = np.radians(1.5), stroke=(np.radians(25), np.radians(40)),
-                              step=np.radians(4.0), face_fraction: float = 0.6, name: str = "",
+                              step=np.radians(4.0), face_fraction: float = 0.6,
+                              normals_per_contact=None, noise: float = np.radians(2.0), drop: float = 0.0,
+                              normal_source: str = "face", pad_radius: float = 0.02,
+                              centroid_std: float = 0.001, name: str = "",
                               rng=None) -> RotationDataset:
     """Simulate the rotation experiment of seed 000, section IV.
 
@@ -137,20 +153,36 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     4 cm across as in seed 000) turns on a fixed axis between two curved fingers on
     opposite sides. The hand turns it in strokes: it grasps, turns it by ``stroke`` while
     the fingers roll with it, releases and regrasps at the point-symmetric position
-    (seed 000, Fig. 3). Each sample (2-3 Hz) holds the normals of the tactile elements in
-    contact:
+    (seed 000, Fig. 3). Each sample (2-3 Hz) holds the normals measured by the fingers in
+    contact.
+
+    With the defaults (``normals_per_contact=None``) it produces the dense data of the
+    first version of this generator:
 
     - a finger that lands on a flat side measures that side's normal, sharply (12
-      elements, 2 degrees spread) - it rotates with the object during the stroke;
+      elements, ``noise`` = 2 degrees spread) - it rotates with the object during the stroke;
     - a finger that lands on an edge rolls over it and measures a broad spread of normals
       (6 elements spread over 80 % of the angle between the two sides);
     - on the round cylinder the contact normal points at the finger (world frame), so
       it sweeps through the object frame; 6 elements, 8 degrees spread.
 
+    With ``normals_per_contact`` set, every finger in contact gives that many normals per
+    sample (an int, or a ``(lo, hi)`` range drawn per finger and sample; 1-2 for a real
+    hand's blobs), each with ``noise`` (standard deviation, rad), on faces, edges and the
+    round object alike. ``normal_source="pad"`` models seed 000, section II: a normal is
+    the *sensor surface's* normal at the blob centroid, found by forward kinematics. The
+    finger's pad is rigid and curved (radius ``pad_radius``): on a flat side the pad
+    touches where its normal opposes the side's, so the measured normal is the side's
+    normal turned by the centroid's position error over the pad radius
+    (``N(0, centroid_std) / pad_radius`` rad); on an edge the pad rocks and the normal
+    lies anywhere between the two sides' normals; on the round object it points at the
+    finger. :data:`SEED_FAITHFUL` holds such a setting.
+
     The odometry under-estimates each stroke's rotation by a factor drawn from
     ``under_estimate`` per data set (seed 000, II-B: "a strong tendency of systematically
     underestimating the object rotation"), and every release/regrasp turns the object by
-    an unobserved ``N(0, slip_std)``.
+    an unobserved ``N(0, slip_std)``. A fraction ``drop`` of the samples carries no
+    normals (no contact detected); such samples keep their time and odometry.
 
     Parameters
     ----------
@@ -163,7 +195,7 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     diameter : float
         Object diameter, m (metadata; the normals do not depend on it).
     under_estimate : (float, float)
-        Range of the odometry's relative under-estimate of rotation.
+        Range of the odometry's relative under-estimate of rotation (the odometry bias).
     slip_std : float
         Standard deviation of the unobserved rotation at each regrasp, rad.
     stroke : (float, float)
@@ -173,6 +205,18 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     face_fraction : float
         Fraction of the angle between two side normals in which a finger lands on the
         side rather than on an edge.
+    normals_per_contact : None, int or (int, int)
+        Normals per finger in contact and sample, 1..40; None for the dense default.
+    noise : float
+        Angular noise of each normal, rad (standard deviation).
+    drop : float
+        Probability in [0, 1) that a sample has no normals.
+    normal_source : {"face", "pad"}
+        Whether a normal is the touched side's normal plus noise, or the curved pad's
+        normal at the blob centroid (see above).
+    pad_radius, centroid_std : float
+        Radius of curvature of the finger pad and standard deviation of the blob
+        centroid's position on it, m (``normal_source="pad"`` only).
     name : str
         Label of the data set.
     rng : None, int or numpy Generator
@@ -185,6 +229,19 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
         raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
     if not (np.isfinite(revolutions) and revolutions > 0):
         raise ValidationError(f"revolutions must be positive, got {revolutions!r}")
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValidationError(f"noise must be a non-negative angle in rad, got {noise!r}")
+    if not (0.0 <= drop < 1.0):
+        raise ValidationError(f"drop must be a probability in [0, 1), got {drop!r}")
+    if normal_source not in ("face", "pad"):
+        raise ValidationError(f"normal_source must be 'face' or 'pad', got {normal_source!r}")
+    if normal_source == "pad" and not (pad_radius > 0 and centroid_std >= 0):
+        raise ValidationError(f"pad_radius must be > 0 and centroid_std >= 0 (m), got {pad_radius!r}, "
+                              f"{centroid_std!r}")
+    dense = normals_per_contact is None
+    if not dense:
+        k_lo, k_hi = _count(normals_per_contact, "normals_per_contact")
+    pad_std = centroid_std / pad_radius if normal_source == "pad" else 0.0
     rng = as_rng(rng)
     bias = rng.uniform(*under_estimate)
     total = TWO_PI * revolutions
@@ -217,16 +274,27 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
             est += d * (1.0 - bias) + rng.normal(0.0, np.radians(0.2)) * (d > 0)
             t += 1.0 / rng.uniform(*rate_hz)
             parts = []
+            dropped = drop > 0 and rng.random() < drop
             for kind, a in contact:
+                if dense:
+                    if kind == "face":
+                        tilt = rng.normal(0.0, np.radians(1.0))
+                        parts.append(a + theta + tilt + rng.normal(0.0, noise, 12))
+                    elif kind == "edge":
+                        parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, 6)
+                                     + rng.normal(0.0, noise, 6))
+                    else:
+                        parts.append(a + rng.normal(0.0, np.radians(8.0), 6))
+                    continue
+                m = int(rng.integers(k_lo, k_hi + 1))
+                err = rng.normal(0.0, noise, m) + (rng.normal(0.0, pad_std, m) if pad_std else 0.0)
                 if kind == "face":
-                    tilt = rng.normal(0.0, np.radians(1.0))
-                    parts.append(a + theta + tilt + rng.normal(0.0, np.radians(2.0), 12))
+                    parts.append(a + theta + err)
                 elif kind == "edge":
-                    parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, 6)
-                                 + rng.normal(0.0, np.radians(2.0), 6))
+                    parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, m) + err)
                 else:
-                    parts.append(a + rng.normal(0.0, np.radians(8.0), 6))
-            a = np.concatenate(parts)
+                    parts.append(a + err)
+            a = np.concatenate(parts) if not dropped else np.empty(0)
             angles.append(a)
             index.append(np.full(a.size, k))
             times.append(t)
@@ -234,7 +302,7 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
             truth.append(theta)
             k += 1
     normals = (np.concatenate(angles) + np.pi) % TWO_PI - np.pi
-    return RotationDataset(np.array(times), np.array(odo), normals, np.concatenate(index),
+    return RotationDataset(np.array(times), np.array(odo), normals, np.concatenate(index).astype(np.int64),
                            true_orientation=np.array(truth), n_surfaces=int(n_sides),
                            name=name or (f"{n_sides}-gon" if n_sides else "round"))
 
@@ -280,11 +348,13 @@ def save_recording(ds: RotationDataset, path) -> Path:
                 fh.write(f"# n_surfaces: {ds.n_surfaces}\n")
             w = csv.writer(fh)
             w.writerow(["time", "odometry", "normal_angle"] + (["true_orientation"] if truth else []))
-            for i, a in zip(ds.sample_index.tolist(), ds.normal_angles.tolist()):
-                row = [repr(float(ds.time[i])), repr(float(ds.odometry[i])), repr(a)]
-                if truth:
-                    row.append(repr(float(ds.true_orientation[i])))
-                w.writerow(row)
+            for i in range(len(ds)):
+                # a sample without normals is one row with an empty normal_angle
+                for a in (ds.angles(i).tolist() or [""]):
+                    row = [repr(float(ds.time[i])), repr(float(ds.odometry[i])), repr(a) if a != "" else ""]
+                    if truth:
+                        row.append(repr(float(ds.true_orientation[i])))
+                    w.writerow(row)
     else:
         raise ValidationError(f"recording path must end in .csv or .npz, got {path.name!r}")
     return path
@@ -329,7 +399,11 @@ def load_recording(path) -> RotationDataset:
         if c not in cols:
             raise ValidationError(f"{path.name} lacks column {c!r}; header is {cols}")
     try:
-        rows = np.array([[float(r[c]) for c in cols] for r in reader], dtype=np.float64)
+        records = list(reader)
+        # an empty normal_angle marks a sample without contact
+        has = np.array([bool((r["normal_angle"] or "").strip()) for r in records], dtype=bool)
+        rows = np.array([[float(r[c]) if (c != "normal_angle" or h) else 0.0 for c in cols]
+                         for r, h in zip(records, has)], dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"{path.name}: every value must be a number: {exc}") from None
     col = {c: rows[:, i] for i, c in enumerate(cols)}
@@ -342,5 +416,5 @@ def load_recording(path) -> RotationDataset:
         raise ValidationError(f"{path.name}: rows of one sample (same time) must share the odometry")
     truth = col["true_orientation"][first] if "true_orientation" in col else None
     n_surf = int(meta["n_surfaces"]) if "n_surfaces" in meta else None
-    return RotationDataset(t[first], odo[first], col["normal_angle"], sample_index, true_orientation=truth,
+    return RotationDataset(t[first], odo[first], col["normal_angle"][has], sample_index[has], true_orientation=truth,
                            n_surfaces=n_surf, name=meta.get("name", path.stem))

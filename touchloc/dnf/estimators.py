@@ -114,7 +114,7 @@ class HistogramEstimator:
 
     def step(self, normal_angles, odometry: float) -> float:
         """Add one sample's normals ((K,) rad, world frame) at the given odometry (rad)."""
-        a = as_angles(normal_angles)
+        a = as_angles(normal_angles, allow_empty=True)
         self.odometry = as_odometry(odometry)
         self._step(a)
         return self.odometry

@@ -153,7 +153,7 @@ class ParticleOrientationEstimator:
 
     def step(self, normal_angles, odometry: float) -> float:
         """Process one sample ((K,) normal angles, rad, world frame; odometry, rad)."""
-        a = as_angles(normal_angles)
+        a = as_angles(normal_angles, allow_empty=True)
         self.odometry = as_odometry(odometry)
         self._step(a)
         return self.orientation

@@ -11,6 +11,7 @@ from .kinematics import DEFAULT_PADS, FINGER_AXES, PadLayout, SDH2Kinematics
 from .sdh2 import SDH2, AxisState, GripPreset, Identification, SDHFirmwareError
 from .session import SessionLog, SessionRecord, read_session, replay, session_contacts
 from .tactile import Blob, blobs_to_contacts, find_blobs, frame_to_contacts
+from .dnf_features import blob_normals, frame_normal_angles, rotation_plane_angles  # noqa: F401 (DNF input)
 
 __all__ = [
     # drivers

@@ -1,0 +1,117 @@
+"""The tracker's input stage: independent of the number of normals per sample, samples
+without contact are valid, and the seed-faithful generator's knobs do what they say."""
+
+import numpy as np
+import pytest
+
+from touchloc.dnf import (SEED_FAITHFUL, HistogramEstimator, OrientationTracker, ParticleOrientationEstimator,
+                          generate_rotation_dataset, population_code, save_recording, load_recording)
+from touchloc.errors import ValidationError
+
+DEG = np.pi / 180
+
+
+def test_normalised_code_does_not_grow_with_the_number_of_normals():
+    one = population_code([0.3], 360, 4 * DEG, 1.0, normalize=True)
+    many = population_code(np.full(40, 0.3), 360, 4 * DEG, 1.0, normalize=True)
+    np.testing.assert_allclose(one, many, rtol=1e-12)
+    summed = population_code(np.full(40, 0.3), 360, 4 * DEG, 1.0)
+    assert summed.max() == pytest.approx(40 * one.max())
+    assert not np.any(population_code([], 360, 4 * DEG, 1.0, normalize=True))
+
+
+def test_expected_code_is_the_same_for_1_and_40_normals_per_sample():
+    rng = np.random.default_rng(0)
+    codes = {k: np.mean([population_code(rng.normal(1.0, 3 * DEG, k), 360, 4 * DEG, 1.0, normalize=True)
+                         for _ in range(400)], axis=0) for k in (1, 40)}
+    # same expected input (the tuning curve smoothed by the 3 deg noise: peak 4/5 = 0.8)
+    assert codes[1].max() == pytest.approx(codes[40].max(), rel=0.05)
+    assert codes[40].max() == pytest.approx(0.8, rel=0.05)
+    sites = np.arange(360) * DEG
+    assert all(abs(sites[np.argmax(c)] - 1.0) < 2 * DEG for c in codes.values())
+
+
+def _windowed(k, rng):
+    tr = OrientationTracker(correct=False, input_window=8.0)
+    rng = np.random.default_rng(rng)
+    for _ in range(60):
+        tr.step(rng.normal(1.0, 3 * DEG, k), 0.0)
+    return tr._evidence / max(tr._weight, 1.0)
+
+
+def test_evidence_window_averages_to_the_same_input_for_1_and_40_normals():
+    e1 = np.mean([_windowed(1, s) for s in range(6)], axis=0)
+    e40 = _windowed(40, 0)
+    assert e1.max() == pytest.approx(e40.max(), rel=0.15)
+
+
+def test_a_sample_without_contact_is_valid():
+    tr = OrientationTracker()
+    for _ in range(10):
+        tr.step([0.5, 0.5 + np.pi], 0.0)
+    u = tr.surface.u.copy()
+    assert tr.step([], 0.0) == pytest.approx(tr.orientation)
+    assert tr.surface.u.max() < u.max()           # no input: the surface peak relaxes
+    mem = tr.memory.copy()
+    tr.step(np.empty(0), 0.0)
+    assert np.abs(tr.memory - mem).max() < 0.05   # the memory keeps its shape
+    # the baselines accept it too
+    assert HistogramEstimator().step([], 0.3) == 0.3
+    ParticleOrientationEstimator(20, rng=0).step([], 0.0)
+
+
+def test_with_a_window_an_empty_sample_does_not_dilute_the_evidence():
+    tr = OrientationTracker(input_window=4.0)
+    for _ in range(10):
+        tr.step([0.5, 0.5 + np.pi], 0.0)
+    before = tr._evidence / tr._weight
+    tr.step([], 0.0)
+    np.testing.assert_allclose(tr._evidence / max(tr._weight, 1.0), before, rtol=1e-9)
+    for _ in range(40):                         # a long gap: the evidence fades
+        tr.step(np.empty(0), 0.0)
+    assert (tr._evidence / max(tr._weight, 1.0)).max() < 0.01 * before.max()
+    with pytest.raises(ValidationError, match="input_window"):
+        OrientationTracker(input_window=-1.0)
+
+
+def test_generator_default_is_the_dense_setting_and_knobs_validate():
+    ds = generate_rotation_dataset(6, revolutions=0.5, rng=3)
+    counts = np.bincount(ds.sample_index, minlength=len(ds))
+    assert set(np.unique(counts)) <= {12, 18, 24}             # 12 per side, 6 per edge, two fingers
+    with pytest.raises(ValidationError, match="normals_per_contact"):
+        generate_rotation_dataset(6, normals_per_contact=41)
+    with pytest.raises(ValidationError, match="drop"):
+        generate_rotation_dataset(6, drop=1.0)
+    with pytest.raises(ValidationError, match="normal_source"):
+        generate_rotation_dataset(6, normal_source="object")
+
+
+def test_seed_faithful_generator_counts_drops_and_noise(tmp_path):
+    ds = generate_rotation_dataset(8, rng=4, **dict(SEED_FAITHFUL, drop=0.2))
+    counts = np.bincount(ds.sample_index, minlength=len(ds))
+    assert set(np.unique(counts)) <= {0, 2, 3, 4}             # 1-2 blobs per finger, two fingers
+    assert 0.12 < np.mean(counts == 0) < 0.28                 # about 20 % dropped
+    # face normals: the pad adds centroid error / pad radius (1 mm / 2 cm = 2.9 deg) to the
+    # 3 deg noise, so about 4.1 deg in all
+    obj = ds.normal_angles - ds.true_orientation[ds.sample_index]
+    dist = (obj + np.pi / 8) % (np.pi / 4) - np.pi / 8
+    core = dist[np.abs(dist) < 10 * DEG]
+    assert 3.0 * DEG < np.std(core) < 5.5 * DEG
+    # a recording with empty samples survives a round trip
+    back = load_recording(save_recording(ds, tmp_path / "r.npz"))
+    np.testing.assert_array_equal(np.bincount(back.sample_index, minlength=len(back)), counts)
+
+
+def test_odometry_bias_knob():
+    ds = generate_rotation_dataset(6, rng=5, under_estimate=(0.1, 0.1), slip_std=0.0,
+                                   normals_per_contact=1)
+    ratio = (ds.odometry[-1] - ds.odometry[0]) / (ds.true_orientation[-1] - ds.true_orientation[0])
+    assert ratio == pytest.approx(0.9, abs=0.01)
+
+
+def test_csv_round_trip_keeps_samples_without_contact(tmp_path):
+    ds = generate_rotation_dataset(5, revolutions=0.5, rng=6, normals_per_contact=1, drop=0.3)
+    back = load_recording(save_recording(ds, tmp_path / "r.csv"))
+    assert len(back) == len(ds)
+    np.testing.assert_array_equal(back.sample_index, ds.sample_index)
+    np.testing.assert_allclose(back.normal_angles, ds.normal_angles, atol=1e-12)

@@ -1,0 +1,141 @@
+"""Tactile frames to the DNF tracker's input: per-finger contact-normal angles in the rotation plane.
+
+Seed 000 (section II) computes one feature per tactile blob: the blob's centroid in the
+pressure image, placed on the hand by forward kinematics, and the *sensor surface's* normal
+there. The tracker (:class:`touchloc.dnf.OrientationTracker`) wants each normal as an angle
+in the plane the object turns in. This module goes
+
+    DSACON32m frame -> blobs (:func:`touchloc.hardware.find_blobs`) -> outward object
+    normals at the blob centroids -> angles about the rotation axis, grouped by finger.
+
+The pads of the SDH-2 are curved across the finger. :class:`SDH2Kinematics` models each pad
+as flat (one normal per pad); with ``pad_radius`` the normal at a centroid is tilted about
+the link direction by the centroid's distance from the pad's centre line over the radius,
+so two blobs on one pad give two normals, as on the real sensor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ValidationError
+from .kinematics import SDH2Kinematics
+from .tactile import find_blobs
+
+__all__ = ["rotation_plane_angles", "blob_normals", "frame_normal_angles"]
+
+
+def _unit(v, name):
+    v = np.asarray(v, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise ValidationError(f"{name} must be a finite non-zero (3,) vector, got {v!r}")
+    return v / np.linalg.norm(v)
+
+
+def _plane(axis, reference):
+    a = _unit(axis, "axis")
+    r = _unit(reference, "reference")
+    r = r - a * (r @ a)
+    if np.linalg.norm(r) < 1e-6:
+        raise ValidationError("reference must not be parallel to the rotation axis")
+    r /= np.linalg.norm(r)
+    return a, r, np.cross(a, r)
+
+
+def rotation_plane_angles(normals, axis, reference, *, min_in_plane: float = 0.3):
+    """Angles of normals about a rotation axis.
+
+    Parameters
+    ----------
+    normals : (K, 3) float
+        Normals (any frame, the same as ``axis`` and ``reference``).
+    axis : (3,) float
+        Rotation axis of the object (right-handed: angles grow counter-clockwise about it).
+    reference : (3,) float
+        Direction of angle 0 (projected onto the plane normal to ``axis``).
+    min_in_plane : float
+        Normals whose component in the plane is shorter than this (relative to their
+        length) point along the axis and have no usable angle; they are left out.
+
+    Returns
+    -------
+    angles : (M,) float
+        rad, in (-pi, pi].
+    keep : (K,) bool
+        Which normals were used.
+    """
+    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    a, e1, e2 = _plane(axis, reference)
+    x, y = n @ e1, n @ e2
+    length = np.linalg.norm(n, axis=1)
+    keep = np.hypot(x, y) >= min_in_plane * np.maximum(length, 1e-12)
+    return np.arctan2(y[keep], x[keep]), keep
+
+
+def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad_radius: float | None = None,
+                 hand_pose=None) -> np.ndarray:
+    """Outward object normals at the blobs' centroids, (K, 3).
+
+    With ``pad_radius`` (m) the pad is taken as a cylinder about the link direction: a
+    centroid ``d`` metres across from the pad's centre line sees the normal turned by
+    ``d / pad_radius`` rad about the link. Without it each blob gets its pad's flat normal
+    (:attr:`Blob.normal`).
+    """
+    if not blobs:
+        return np.zeros((0, 3))
+    base = np.stack([b.normal for b in blobs])
+    if pad_radius is None:
+        return base
+    if not (np.isfinite(pad_radius) and pad_radius > 0):
+        raise ValidationError(f"pad_radius must be a positive length in m, got {pad_radius!r}")
+    kin = kinematics or SDH2Kinematics()
+    T = None if hand_pose is None else np.asarray(hand_pose, dtype=np.float64)
+    out = np.empty_like(base)
+    for i, b in enumerate(blobs):
+        pad = kin.pads[b.matrix]
+        _, across = pad.local_coordinates(b.centroid[0], b.centroid[1])   # from the centre line
+        phi = float(across) / pad_radius
+        _, _, k, n_pad = kin.pad_frame(angles, b.matrix)
+        # the pad's outward normal turns towards +k across a convex pad; the object's is minus it
+        v = -(np.cos(phi) * n_pad + np.sin(phi) * k)
+        out[i] = v if T is None else T[:3, :3] @ v
+    return out
+
+
+def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinematics | None = None,
+                        threshold: int = 100, min_texels: int = 1, pad_radius: float | None = 0.02,
+                        hand_pose=None, min_in_plane: float = 0.3):
+    """One tactile frame to the DNF tracker's input: normal angles in the rotation plane.
+
+    Parameters
+    ----------
+    frame : TactileFrame or sequence of 6 (cells_y, cells_x) arrays
+    angles : (7,) float
+        Joint angles (rad) when the frame was taken.
+    axis, reference : (3,) float
+        The object's rotation axis and the direction of angle 0, in the hand frame (or in
+        the world frame when ``hand_pose`` is given).
+    kinematics : SDH2Kinematics, optional
+    threshold, min_texels : int
+        Blob detection (see :func:`touchloc.hardware.find_blobs`).
+    pad_radius : float or None
+        Radius of the pads' curvature across the finger, m (None: flat pads).
+    hand_pose : (4, 4) float, optional
+        T_world_hand.
+    min_in_plane : float
+        See :func:`rotation_plane_angles`.
+
+    Returns
+    -------
+    normal_angles : (K,) float
+        One angle per blob (rad), ready for ``tracker.step(normal_angles, odometry)``;
+        empty when nothing touches (a valid tracker input).
+    finger : (K,) int
+        The finger (0, 1, 2) of each angle.
+    """
+    blobs = find_blobs(frame, angles, kinematics, threshold=threshold, min_texels=min_texels,
+                       hand_pose=hand_pose)
+    normals = blob_normals(blobs, angles, kinematics, pad_radius=pad_radius, hand_pose=hand_pose)
+    ang, keep = rotation_plane_angles(normals, axis, reference, min_in_plane=min_in_plane)
+    finger = np.array([b.matrix // 2 for b in blobs], dtype=np.int64)[keep] if blobs else np.zeros(0, np.int64)
+    return ang, finger
