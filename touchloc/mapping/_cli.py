@@ -17,6 +17,10 @@ def register(sub):
     p.add_argument("--noise-nor", type=float, default=5.0, help="contact normal noise (deg, default 5)")
     p.add_argument("--margin", type=float, default=20.0,
                    help="the map's box is the object's box grown by this (mm, default 20)")
+    p.add_argument("--moving", default="none", choices=["none", "push", "inhand"],
+                   help="the object moves while touched: 'push' (2 mm / 2 deg per action, on a table) or "
+                        "'inhand' (15 deg turns about z with 5 %% odometry bias); mapped by tactile SLAM")
+    p.add_argument("--fingers", type=int, default=1, help="fingers closing at once per action (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", default=None, help="write a PNG of the map beside the true object")
     p.add_argument("--html", default=None, help="write a rotating 3-D HTML view of the map")
@@ -63,8 +67,24 @@ def run(args) -> int:
     lo, hi = truth.bounds
     pad = args.margin * 1e-3
     bounds = (lo - pad, hi + pad)
-    world = SimulatedWorld(obj, T, noise_pos=args.noise_pos * 1e-3, noise_nor=np.deg2rad(args.noise_nor),
-                           rng=args.seed + 1)
+    noise = dict(noise_pos=args.noise_pos * 1e-3, noise_nor=np.deg2rad(args.noise_nor))
+    slam = None
+    if args.moving == "none":
+        world = SimulatedWorld(obj, T, rng=args.seed + 1, **noise)
+    else:
+        from .slam import MovingWorld, TactileSLAM
+
+        if args.moving == "push":
+            world = MovingWorld(obj, T, push=(0.002, np.deg2rad(2.0)), planar=True, rng=args.seed + 1, **noise)
+            motion = dict(planar=True)
+        else:
+            world = MovingWorld(obj, T, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0),
+                                bias=0.05, rng=args.seed + 1, **noise)
+            motion = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)))
+        # the object frame is the world frame at the start: the truth to compare with is the start
+        slam = TactileSLAM(bounds, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
+                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, **motion)
+        bounds = (bounds[0] - 0.03, bounds[1] + 0.03)
     print(f"{obj}\nhidden in the box {np.round(bounds[0] * 1e3, 1).tolist()} .. {np.round(bounds[1] * 1e3, 1).tolist()} mm; "
           f"{args.touches} touches, planner {args.planner}, map {args.method}")
     checkpoints = sorted({k for k in (5, 10, 20, 30, 50, 75, 100, 150, 200, 300) if k < args.touches} | {args.touches})
@@ -83,9 +103,10 @@ def run(args) -> int:
                   f"F-score@5mm {f:.3f}; update {step['update_time'] * 1e3:.0f} ms", flush=True)
 
     t0 = time.perf_counter()
-    res = explore(world, bounds, args.touches, planner=args.planner, method=args.method, rng=args.seed,
-                  callback=report, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
-                  sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3))
+    kw = {} if slam is not None else dict(method=args.method, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
+                                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3))
+    res = explore(world, bounds, args.touches, planner=args.planner, rng=args.seed, callback=report, slam=slam,
+                  fingers=args.fingers, **kw)
     dt = time.perf_counter() - t0
     stats = ""
     if history:
@@ -96,6 +117,15 @@ def run(args) -> int:
         from .viz import plot_map
 
         print(f"wrote {plot_map(args.plot, res, truth, title=title, history=history or None)}")
+    if args.plot and slam is not None:
+        from .viz import plot_trajectory
+
+        tp = Path(args.plot)
+        tpath = tp.with_name(tp.stem + "_trajectory" + tp.suffix)
+        # SLAM poses map the map's frame (the world at the start) to the world: the mesh's
+        # own frame is at X @ T for the hidden start pose T
+        est = [X @ T for X in slam.trajectory[1:]]
+        print(f"wrote {plot_trajectory(tpath, est, world.trajectory[1:], obj=obj, title=title)}")
     if args.html:
         from .viz import write_map_html
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_map", "write_map_html"]
+__all__ = ["plot_map", "write_map_html", "plot_trajectory"]
 
 
 def _segments(results):
@@ -179,4 +179,55 @@ def write_map_html(path, run, truth=None, *, title: str = "Shape map from touch"
             "center": mm(0.5 * (lo + hi)), "extent": float(np.max(hi - lo) * 1e3 * 1.4)}
     path.write_text(_HTML % {"title": html.escape(title), "data": json.dumps(data), "stats": html.escape(stats),
                              "table": html.escape(run.table())})
+    return path
+
+
+def plot_trajectory(path, estimated, true, *, obj=None, title: str = "") -> Path:
+    """Write a PNG: the estimated against the true path of the object (top view) and the
+    pose error per step (translation, rotation, and ADD-S when ``obj`` is given).
+
+    Parameters
+    ----------
+    estimated, true : (T, 4, 4) float
+        Pose trajectories (T_world_object), one per step.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    E, G = np.asarray(estimated, float), np.asarray(true, float)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.4))
+    ax[0].plot(G[:, 0, 3] * 1e3, G[:, 1, 3] * 1e3, "-", color="0.5", label="true")
+    ax[0].plot(E[:, 0, 3] * 1e3, E[:, 1, 3] * 1e3, "-", color="tab:blue", label="estimated")
+    ax[0].plot(G[0, 0, 3] * 1e3, G[0, 1, 3] * 1e3, "ko", ms=4, label="start")
+    ax[0].set_aspect("equal", adjustable="datalim")
+    ax[0].set_xlabel("x (mm)")
+    ax[0].set_ylabel("y (mm)")
+    ax[0].set_title("object origin, top view")
+    ax[0].legend(fontsize=8)
+    k = np.arange(len(E))
+    dt = np.linalg.norm(E[:, :3, 3] - G[:, :3, 3], axis=1) * 1e3
+    tr = np.einsum("nij,nij->n", E[:, :3, :3], G[:, :3, :3])
+    da = np.degrees(np.arccos(np.clip((tr - 1) / 2, -1, 1)))
+    ax[1].plot(k, dt, label="translation error (mm)")
+    if obj is not None:
+        from ..belief import add_s
+
+        ax[1].plot(k, [add_s(obj, a, b) * 1e3 for a, b in zip(E, G)], label="ADD-S (mm)")
+    ax[1].set_xlabel("action")
+    ax[1].set_ylabel("mm")
+    ax2 = ax[1].twinx()
+    ax2.plot(k, da, color="tab:red", alpha=0.6, label="rotation error (deg)")
+    ax2.set_ylabel("deg")
+    lines = ax[1].get_lines() + ax2.get_lines()
+    ax[1].legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper left")
+    ax[1].set_title("pose error per action")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
     return path
