@@ -223,12 +223,24 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_
         special = vec[:, 0]
     if special is not None:
         if np.all(test(_axis_rot(special, _CONTINUOUS_TEST)) <= tol):
-            u, v = _perpendicular(special)
+            a = special / np.linalg.norm(special)
+            u, v = _perpendicular(a)
             phis = np.linspace(0, np.pi, 19)[:-1]
-            flips = [_axis_rot(np.cos(p) * u + np.sin(p) * v, np.pi)[0] for p in phis]
-            ok = test(np.array(flips)) <= tol
-            rots = [np.eye(3)] + ([flips[int(np.argmax(ok))]] if ok.any() else [])
-            return Symmetry(np.array(rots), c, special / np.linalg.norm(special), True, False, tol, quantile)
+            flips = np.array([_axis_rot(np.cos(p) * u + np.sin(p) * v, np.pi)[0] for p in phis])
+            # an end-to-end flip turns about the middle of the body along the axis, which
+            # a small feature at one end (a pull tab) moves the area centroid away from
+            h = obj.mesh.vertices @ a
+            mid = c + a * (0.5 * (h.min() + h.max()) - c @ a)
+            best = None
+            for centre in (c, mid):
+                flip_test = _Tester(obj, centre, int(n_samples), rng, float(quantile))
+                ok = flip_test(flips) <= tol
+                if ok.any():
+                    best = (centre, flips[int(np.argmax(ok))])
+                    break
+            rots = [np.eye(3)] + ([best[1]] if best else [])
+            centre = best[0] if best else c
+            return Symmetry(np.array(rots), centre, a, True, False, tol, quantile)
     found = []
     for a in axes:
         for n in range(2, max_order + 1):
