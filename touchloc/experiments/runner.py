@@ -46,6 +46,13 @@ class SerialExecutor(cf.Executor):
         self._shutdown = True
 
 
+def _single_threaded(threads: int = 1) -> None:
+    """Worker initialiser: compiled kernels use ``threads`` threads (one process per core)."""
+    import numba
+
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+
+
 @contextlib.contextmanager
 def executor(spec: str = "processes", workers: int | None = None):
     """An Executor for ``spec``, shut down (cluster closed) on exit, even on error.
@@ -58,6 +65,12 @@ def executor(spec: str = "processes", workers: int | None = None):
         single-threaded worker processes); ``"dask://HOST:PORT"`` or ``"tcp://HOST:PORT"``
         (an existing Dask scheduler).
     workers : int, optional
+
+    Notes
+    -----
+    The compiled kernels are multi-threaded. Local pool and cluster workers run them on
+    one thread each (one trial per core beats two threads per trial); workers of an
+    existing scheduler keep their own settings (start them with NUMBA_NUM_THREADS=1).
     """
     if spec == "serial":
         ex = SerialExecutor()
@@ -69,7 +82,8 @@ def executor(spec: str = "processes", workers: int | None = None):
     if spec == "processes":
         import multiprocessing as mp
 
-        ex = cf.ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=mp.get_context("spawn"))
+        ex = cf.ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=mp.get_context("spawn"),
+                                    initializer=_single_threaded)
         try:
             yield ex
         finally:
@@ -84,7 +98,8 @@ def executor(spec: str = "processes", workers: int | None = None):
             if spec == "dask":
                 cluster = stack.enter_context(LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1,
                                                            processes=True, host="127.0.0.1",
-                                                           dashboard_address=None))
+                                                           dashboard_address=None,
+                                                           env={"NUMBA_NUM_THREADS": "1"}))
                 client = stack.enter_context(Client(cluster))
             else:
                 address = "tcp://" + spec.split("://", 1)[1]
