@@ -39,6 +39,7 @@ def _noop(x):
 
 def run(quick: bool = False) -> str:
     workers = os.cpu_count() or 2
+    load0 = os.getloadavg()[0]
     seeds = 3 if quick else 10
     sweep = Sweep(meshes=["cereal", "milk", "can"], estimators=[{"name": "pf", "n_particles": 8000}],
                   contacts=[30], seeds=seeds)
@@ -86,7 +87,10 @@ def run(quick: bool = False) -> str:
         "default); 'serial, 1 thread' is the per-core baseline; pool and cluster workers run one thread "
         "each. The machine is shared with other jobs, so ratios vary by a few tenths between runs.",
         table(("executor", "workers", "trials", "set-up s", "wall s", "trials / s", "vs serial, 1 thread", "busy"), rows),
-        f"The three tables are {'identical' if same else 'NOT identical'} in every column but the wall time. "
+        f"The {len(tables)} tables are {'identical' if same else 'NOT identical'} in every column but the wall "
+        f"time. Load average (1 min) of the machine: {load0:.1f} before, {os.getloadavg()[0]:.1f} after this "
+        f"benchmark on {workers} cores; with other jobs holding the cores, extra workers cannot show "
+        "their full speed-up. "
         f"Dask round trip of a no-op task through the executor (200 tasks, 2 workers): "
         f"{1e3 * per_task:.1f} ms per task, {100 * per_task / 1.0:.1f} % of a 1 s trial. A task carries only the "
         f"trial's parameters ({payload} bytes pickled); meshes and their BVHs are built in each worker on "

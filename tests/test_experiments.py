@@ -149,3 +149,12 @@ def test_serial_executor_is_a_real_executor():
         assert list(ex.map(np.square, [1, 2])) == [1, 4]
         f = ex.submit(int, "x")
         assert isinstance(f.exception(), ValueError)
+
+
+def test_an_active_trial_runs_the_planning_loop_and_repeats():
+    p = Sweep(meshes=["cereal"], modes=["active"], planners=["random"], contacts=[2], seeds=[4],
+              region="planar").trials()[0]
+    a, b = run_trial(p), run_trial(p)
+    assert a["mode"] == "active" and a["estimator"] == "smc" and a["planner"] == "random"
+    assert 1 <= a["touches"] <= 2
+    assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}

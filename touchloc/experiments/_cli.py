@@ -34,8 +34,15 @@ def run_sweep_cmd(args) -> int:
     n = len(sweep.trials())
     print(f"{n} trials -> {args.out} (executor {args.executor})")
     t0 = time.perf_counter()
-    rows = run_sweep(sweep, args.out, executor_spec=args.executor, workers=args.workers,
-                     progress=False if args.no_progress else None, resume=not args.fresh)
+    try:
+        rows = run_sweep(sweep, args.out, executor_spec=args.executor, workers=args.workers,
+                         progress=False if args.no_progress else None, resume=not args.fresh)
+    except KeyboardInterrupt:
+        from .runner import read_results
+
+        print(f"\ninterrupted: {len(read_results(args.out))} finished trials are in {args.out}; "
+              "run the same command again to resume")
+        return 130
     ids = {t["trial_id"] for t in sweep.trials()}
     mine = [r for r in rows if r["trial_id"] in ids]
     ok = sum(r["success"] for r in mine)

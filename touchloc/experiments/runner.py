@@ -197,10 +197,10 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
     out.parent.mkdir(parents=True, exist_ok=True)
     if not resume and out.exists():
         out.unlink()
+    if out.exists():
+        _truncate_partial_line(out)  # before reading: a cut-off row is not a finished trial
     done = _done_ids(out) if out.exists() else set()
     todo = [t for t in trials if t["trial_id"] not in done]
-    if out.exists():
-        _truncate_partial_line(out)
     new_file = not out.exists() or out.stat().st_size == 0
     with open(out, "a", newline="") as fh:
         w = csv.writer(fh)
