@@ -86,6 +86,21 @@ def test_a_sphere_and_a_tight_tolerance():
         box.symmetries(tol=-1.0)
 
 
+def test_prisms_have_their_dihedral_groups():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        square = MeshObject(trimesh.creation.box((0.04, 0.04, 0.1)), name="square")
+        hexagon = MeshObject(trimesh.creation.cylinder(radius=0.03, height=0.1, sections=6), name="hex")
+    # a square prism: quarter turns about its axis and four half-turns across it (D4)
+    assert len(square.symmetries().rotations) == 8
+    # a hexagonal prism (D6), with a tolerance tighter than its facets (a 2 % tolerance
+    # would call a 6-sided prism round)
+    h = hexagon.symmetries(tol=0.0005)
+    assert not h.continuous and len(h.rotations) == 12
+    angles = np.sort([rotation_angle(R, np.eye(3)) for R in h.rotations])
+    assert angles[1] == pytest.approx(np.pi / 3, abs=1e-6)
+
+
 def test_symmetric_pose_error_ignores_symmetric_turns_only(meshes):
     rng = np.random.default_rng(0)
     T = np.eye(4)

@@ -13,7 +13,8 @@ it. A candidate is accepted when every one of a fixed set of surface samples, mo
 it, lies within ``tol`` of the surface (``MeshObject.closest_points``). Accepted rotations
 are closed under composition. Equal moments in all three directions are tested as a
 sphere; other shapes with three equal moments (a cube) are only searched about the
-coordinate axes of the mesh, so some of their symmetries may be missed.
+principal axes that the eigen-decomposition happens to return, so some of their
+symmetries may be missed.
 """
 
 from __future__ import annotations
@@ -215,12 +216,12 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_
         if np.all(test(R) <= tol):
             return Symmetry(np.eye(3)[None], c, None, True, True, tol, quantile)
     # an axis whose two other moments are equal may be an axis of revolution
-    axes = [vec[:, i] for i in range(3)]
-    special = None
+    special_i = None
     if rel(0, 1) < eq_tol and rel(1, 2) >= eq_tol:
-        special = vec[:, 2]
+        special_i = 2
     elif rel(1, 2) < eq_tol and rel(0, 1) >= eq_tol:
-        special = vec[:, 0]
+        special_i = 0
+    special = None if special_i is None else vec[:, special_i]
     if special is not None:
         if np.all(test(_axis_rot(special, _CONTINUOUS_TEST)) <= tol):
             a = special / np.linalg.norm(special)
@@ -242,13 +243,11 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_
             centre = best[0] if best else c
             return Symmetry(np.array(rots), centre, a, True, False, tol, quantile)
     found = []
-    for a in axes:
+    for i in range(3):
         for n in range(2, max_order + 1):
-            if special is None and n > 2:
-                break  # distinct moments admit only half-turns about the principal axes
-            if special is not None and a is not special and n > 2:
-                break
-            R = _axis_rot(a, 2 * np.pi / n)
+            if n > 2 and i != special_i:
+                break  # distinct moments admit only half-turns about a principal axis
+            R = _axis_rot(vec[:, i], 2 * np.pi / n)
             if test(R)[0] <= tol:
                 found.append(R[0])
     if special is not None:
