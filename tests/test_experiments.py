@@ -158,3 +158,11 @@ def test_an_active_trial_runs_the_planning_loop_and_repeats():
     assert a["mode"] == "active" and a["estimator"] == "smc" and a["planner"] == "random"
     assert 1 <= a["touches"] <= 2
     assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}
+
+
+def test_the_smc_filter_runs_as_a_static_estimator_in_a_sweep():
+    p = Sweep(meshes=["cereal"], estimators=[{"name": "smc", "n_particles": 400}], contacts=[10],
+              seeds=[2]).trials()[0]
+    a, b = run_trial(p), run_trial(p)
+    assert a["estimator"] == "smc" and a["touches"] == 10 and np.isfinite(a["add_s"])
+    assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}

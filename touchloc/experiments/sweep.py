@@ -14,7 +14,7 @@ from ..errors import ValidationError
 __all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "trial_id"]
 
 #: estimator names a passive trial accepts (see touchloc.experiments.trial)
-ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "ss+mcmc")
+ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "smc", "ss+mcmc")
 #: planner names an active trial accepts
 PLANNERS = ("one-step", "two-step", "random")
 REGIONS = ("full", "planar")

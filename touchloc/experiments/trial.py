@@ -94,7 +94,7 @@ def _region(p, obj):
 
 def _estimate(p, model, contacts, region, rng):
     from ..belief import (MCMC, AnnealedParticleFilter, HistogramFilter, ManifoldParticleFilter, ParticleFilter,
-                          ScalingSeries)
+                          ScalingSeries, SMCFilter)
 
     opts = json.loads(p["options"]) if p["options"] else {}
     name = p["estimator"]
@@ -111,6 +111,8 @@ def _estimate(p, model, contacts, region, rng):
         return HistogramFilter(model, **opts).localize(contacts, region)
     if name == "apf":
         return AnnealedParticleFilter(model, rng=rng, **opts).localize(contacts, region)
+    if name == "smc":
+        return SMCFilter(model, rng=rng, **opts).localize(contacts, region)
     if name == "mpf":
         return ManifoldParticleFilter(model, rng=rng, **opts).localize(contacts, region)
     raise ValidationError(f"unknown estimator {name!r}")
