@@ -22,6 +22,7 @@ COMMAND_MODULES = [
     "touchloc.hardware._cli",
     "touchloc.recognition._cli",
     "touchloc.mapping._cli",
+    "touchloc.experiments._cli",
 ]
 
 

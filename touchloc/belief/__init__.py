@@ -12,7 +12,7 @@ from .annealed import AnnealedParticleFilter, ManifoldParticleFilter
 from .histogram import HistogramFilter
 from .identify import identify, log_evidence
 from .mcmc import MCMC
-from .metrics import add, add_s, pose_errors
+from .metrics import add, add_s, belief_coverage, credible_level, pose_errors, symmetric_pose_error
 from .particle_filter import ParticleFilter
 from .particles import RESAMPLERS, ParticleBelief, register_resampler, systematic_resample
 from .region import PoseRegion
@@ -23,4 +23,5 @@ __all__ = [
     "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
     "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
     "ManifoldParticleFilter", "SMCFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
+    "symmetric_pose_error", "credible_level", "belief_coverage",
 ]

@@ -7,10 +7,11 @@ from .freespace import FreeSpaceBase, FreeSpaceModel, RayStopModel, TouchLikelih
 from .integrated import IntegratedProximityModel
 from .mesh import MeshObject, MeshRepairWarning, MeshUnitsWarning
 from .proximity import ProximityModel, contacts_in_object_frame
+from .symmetry import Symmetry
 
 __all__ = [
     "Contacts", "MeshObject", "MeshRepairWarning", "MeshUnitsWarning", "MeasurementModel",
     "SumModel", "ProximityModel", "IntegratedProximityModel", "FreeSpaceModel",
     "FreeSpaceBase", "RayStopModel", "TouchLikelihood", "ray_stops",
-    "GaussianDynamics", "contacts_in_object_frame",
+    "GaussianDynamics", "contacts_in_object_frame", "Symmetry",
 ]

@@ -257,6 +257,22 @@ class MeshObject:
         pts = tri[:, 0] + u[:, :1] * (tri[:, 1] - tri[:, 0]) + u[:, 1:] * (tri[:, 2] - tri[:, 0])
         return pts, self.face_normals[faces].copy(), faces
 
+    def symmetries(self, tol: float | None = None):
+        """Rotations that map the surface onto itself within ``tol`` (m), cached.
+
+        Returns a :class:`touchloc.models.symmetry.Symmetry`: a finite group, a
+        continuous axis (body of revolution) or a sphere. ``tol`` defaults to 2 % of the
+        largest extent. See :func:`touchloc.models.symmetry.find_symmetries`.
+        """
+        from .symmetry import find_symmetries
+
+        key = ("symmetries", None if tol is None else float(tol))
+        sym = self._cache.get(key)
+        if sym is None:
+            sym = find_symmetries(self, tol)
+            self._cache[key] = sym
+        return sym
+
     def bvh(self, normal_weight: float):
         """The cached bounding-volume hierarchy used by exact queries.
 

@@ -1,0 +1,161 @@
+"""Object symmetries found by testing, and pose errors and coverage modulo symmetry."""
+
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from touchloc.belief import ParticleBelief, belief_coverage, credible_level, symmetric_pose_error
+from touchloc.errors import ValidationError
+from touchloc.geometry import rotation_angle
+from touchloc.models import MeshObject, Symmetry
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    from touchloc.data import load_object
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {n: load_object(n) for n in ("can", "milk", "cereal", "mug", "lemon")}
+
+
+def _moved_distance(obj, sym, R, n=500):
+    """95th percentile distance of surface samples moved by R about the symmetry centre."""
+    p = obj.sample_surface(n, rng=7)[0]
+    q = (p - sym.center) @ R.T + sym.center
+    return np.quantile(obj.closest_points(q)[2], sym.quantile)
+
+
+def test_every_returned_rotation_is_a_symmetry_on_fresh_samples(meshes):
+    for name, obj in meshes.items():
+        sym = obj.symmetries()
+        assert isinstance(sym, Symmetry)
+        np.testing.assert_allclose(sym.rotations[0], np.eye(3), atol=1e-12)
+        for R in sym.rotations:
+            assert _moved_distance(obj, sym, R) <= 1.5 * sym.tol, name
+        if sym.continuous and not sym.sphere:
+            for a in (0.4, 2.0, 3.7):
+                R = Rotation.from_rotvec(a * sym.axis).as_matrix()
+                assert _moved_distance(obj, sym, R) <= 1.5 * sym.tol, name
+
+
+def test_can_is_a_body_of_revolution_about_its_long_axis(meshes):
+    sym = meshes["can"].symmetries()
+    assert sym.continuous and not sym.sphere
+    assert abs(sym.axis[2]) > 0.999          # the can stands along z
+    assert sym.order == float("inf")
+
+
+def test_boxes_have_a_finite_group_and_the_mug_none(meshes):
+    cereal = meshes["cereal"].symmetries()
+    assert not cereal.continuous and len(cereal.rotations) == 4   # D2: half-turns about 3 axes
+    milk = meshes["milk"].symmetries()     # the gable top leaves only the half-turn about z
+    assert not milk.continuous and len(milk.rotations) == 2
+    assert rotation_angle(milk.rotations[1], np.eye(3)) == pytest.approx(np.pi, abs=1e-6)
+    assert abs(Rotation.from_matrix(milk.rotations[1]).as_rotvec()[2]) == pytest.approx(np.pi, abs=1e-3)
+    mug = meshes["mug"].symmetries()
+    assert not mug.continuous and len(mug.rotations) <= 2   # the handle breaks the rest
+    # a rotation that is not in the group really moves the surface
+    R90 = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
+    assert _moved_distance(meshes["milk"], milk, R90) > milk.tol
+
+
+def test_lemon_is_nearly_a_body_of_revolution(meshes):
+    sym = meshes["lemon"].symmetries()
+    assert sym.continuous
+    # its axis is the direction of largest extent (the tips)
+    ext = np.ptp(meshes["lemon"].mesh.vertices @ sym.axis)
+    assert ext == pytest.approx(meshes["lemon"].extents.max(), rel=0.05)
+
+
+def test_a_sphere_and_a_tight_tolerance():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ball = MeshObject(trimesh.creation.icosphere(subdivisions=3, radius=0.04), name="ball")
+        box = MeshObject(trimesh.creation.box((0.04, 0.06, 0.1)), name="box")
+    s = ball.symmetries()
+    assert s.sphere and s.continuous
+    assert np.all(s.rotation_error(Rotation.random(5, random_state=0).as_matrix(), np.eye(3)) == 0)
+    b = box.symmetries()
+    assert len(b.rotations) == 4
+    assert box.symmetries() is b          # cached on the object
+    with pytest.raises(ValidationError, match="tol"):
+        box.symmetries(tol=-1.0)
+
+
+def test_prisms_have_their_dihedral_groups():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        square = MeshObject(trimesh.creation.box((0.04, 0.04, 0.1)), name="square")
+        hexagon = MeshObject(trimesh.creation.cylinder(radius=0.03, height=0.1, sections=6), name="hex")
+    # a square prism: quarter turns about its axis and four half-turns across it (D4)
+    assert len(square.symmetries().rotations) == 8
+    # a hexagonal prism (D6), with a tolerance tighter than its facets (a 2 % tolerance
+    # would call a 6-sided prism round)
+    h = hexagon.symmetries(tol=0.0005)
+    assert not h.continuous and len(h.rotations) == 12
+    angles = np.sort([rotation_angle(R, np.eye(3)) for R in h.rotations])
+    assert angles[1] == pytest.approx(np.pi / 3, abs=1e-6)
+
+
+def test_symmetric_pose_error_ignores_symmetric_turns_only(meshes):
+    rng = np.random.default_rng(0)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=3).as_matrix()
+    T[:3, 3] = [0.1, -0.05, 0.2]
+    # can: any turn about its axis (about the centre) is free, a tilt is not
+    can = meshes["can"]
+    sym = can.symmetries()
+    g = np.eye(4)
+    g[:3, :3] = Rotation.from_rotvec(1.234 * sym.axis).as_matrix()
+    g[:3, 3] = sym.center - g[:3, :3] @ sym.center
+    dt, dr = symmetric_pose_error(can, T @ g, T)
+    assert dt < 1e-9 and dr < 1e-6
+    tilt = np.eye(4)
+    perp = np.cross(sym.axis, [1.0, 0, 0])
+    tilt[:3, :3] = Rotation.from_rotvec(0.3 * perp / np.linalg.norm(perp)).as_matrix()
+    assert symmetric_pose_error(can, T @ tilt, T)[1] == pytest.approx(0.3, abs=1e-6)
+    # cereal: the half-turns are free, a quarter turn is not; batch form agrees
+    cer = meshes["cereal"]
+    G = cer.symmetries().transforms
+    E = T @ G
+    dt, dr = symmetric_pose_error(cer, E, T)
+    assert dt.shape == (4,) and np.all(dt < 1e-9) and np.all(dr < 1e-6)
+    q = np.eye(4)
+    q[:3, :3] = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
+    assert symmetric_pose_error(cer, T @ q, T)[1] == pytest.approx(np.pi / 2, abs=1e-6)
+    # a translation shows up in full
+    shift = T.copy()
+    shift[:3, 3] += rng.normal(size=3) * 0.01
+    assert symmetric_pose_error(cer, shift, T)[0] == pytest.approx(np.linalg.norm(shift[:3, 3] - T[:3, 3]))
+
+
+def test_coverage_counts_symmetric_particles(meshes):
+    can = meshes["can"]
+    sym = can.symmetries()
+    T = np.eye(4)
+    T[:3, 3] = [0.02, 0.0, 0.1]
+    # heavy particles: the truth turned about the axis (right, modulo symmetry)
+    turns = []
+    for a in np.linspace(0.5, 5.5, 10):
+        g = np.eye(4)
+        g[:3, :3] = Rotation.from_rotvec(a * sym.axis).as_matrix()
+        g[:3, 3] = sym.center - g[:3, :3] @ sym.center
+        turns.append(T @ g)
+    far = np.tile(T, (10, 1, 1))
+    far[:, 0, 3] += 0.05
+    # weights: far particles hold 60 %, the symmetric copies 40 %
+    lw = np.log(np.r_[np.full(10, 0.06), np.full(10, 0.04)])
+    b = ParticleBelief(np.concatenate([far, turns]), lw, resolution=0.002, rho=0.05)
+    q = credible_level(b, T, can)
+    assert q == pytest.approx(0.6)
+    cov = belief_coverage(b, T, can, levels=(0.5, 0.9, 0.95))
+    assert cov == {0.5: False, 0.9: True, 0.95: True}
+    # with the symmetry ignored (trivial group) the turned copies do not count
+    trivial = Symmetry(np.eye(3)[None], sym.center)
+    assert credible_level(b, T, can, symmetry=trivial) == float("inf")
+    with pytest.raises(ValidationError):
+        belief_coverage(b, T, can, levels=(0.0,))

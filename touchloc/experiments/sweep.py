@@ -1,0 +1,168 @@
+"""A sweep: a grid of trial parameters, declared in TOML or in Python."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import ValidationError
+
+__all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "trial_id"]
+
+#: estimator names a passive trial accepts (see touchloc.experiments.trial)
+ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "smc", "ss+mcmc")
+#: planner names an active trial accepts
+PLANNERS = ("one-step", "two-step", "random")
+REGIONS = ("full", "planar")
+
+
+def trial_id(params: dict) -> str:
+    """A stable 16-hex-digit key of a trial's parameters (for resuming)."""
+    blob = json.dumps(params, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha1(blob.encode()).hexdigest()[:16]
+
+
+def _as_list(x, name):
+    if isinstance(x, (str, int, float, dict)):
+        x = [x]
+    x = list(x)
+    if not x:
+        raise ValidationError(f"sweep {name} must not be empty")
+    return x
+
+
+@dataclass
+class Sweep:
+    """A grid of localisation trials.
+
+    Every combination of mesh x estimator x contact count x noise x seed (passive
+    trials) and mesh x planner x touch budget x noise x seed (active trials) is one
+    trial; a trial is a pure function of its parameters (see :func:`run_trial`).
+
+    Parameters
+    ----------
+    meshes : list of str
+        Bundled names or mesh files (in metres; files must be readable by every worker).
+    estimators : list of str or dict
+        Passive estimators: a name from :data:`ESTIMATORS`, or a dict ``{"name": ...,
+        **constructor keyword arguments}``, e.g. ``{"name": "pf", "n_particles": 20000}``.
+    contacts : list of int
+        Contact counts (passive) and touch budgets (active).
+    noise : list of float
+        Position noise of the simulated contacts (m, standard deviation); the normal
+        noise is ``normal_noise`` radians.
+    modes : list of {"passive", "active"}
+    planners : list of str
+        Planners of active trials (:data:`PLANNERS`); the loop's own filter estimates.
+    seeds : int or list of int
+        Trial seeds; an int n means ``range(n)``.
+    region : {"full", "planar"}
+        Passive trials: a pose uniform in a 400 mm cube with any rotation, or x, y in a
+        100 mm square with any yaw on a table. Active trials use the planners' "6dof"
+        and "planar" scenarios.
+    sigma_pos, sigma_nor : float
+        The proximity model's noise.
+    normal_noise : float
+        Simulated normal noise (rad).
+    success : float
+        A trial succeeds when the ADD-S of the MAP pose is below this (m).
+    """
+
+    meshes: list = field(default_factory=lambda: ["can"])
+    estimators: list = field(default_factory=lambda: ["ss"])
+    contacts: list = field(default_factory=lambda: [30])
+    noise: list = field(default_factory=lambda: [0.002])
+    modes: list = field(default_factory=lambda: ["passive"])
+    planners: list = field(default_factory=lambda: ["one-step"])
+    seeds: object = 5
+    region: str = "full"
+    sigma_pos: float = 0.002
+    sigma_nor: float = 0.1
+    normal_noise: float = 0.0873
+    success: float = 0.005
+
+    def __post_init__(self):
+        self.meshes = [os.fspath(m) for m in _as_list(self.meshes, "meshes")]
+        ests = []
+        for e in _as_list(self.estimators, "estimators"):
+            e = {"name": e} if isinstance(e, str) else dict(e)
+            if e.get("name") not in ESTIMATORS:
+                raise ValidationError(f"estimator name must be one of {ESTIMATORS}, got {e.get('name')!r}")
+            ests.append(e)
+        self.estimators = ests
+        self.contacts = [int(k) for k in _as_list(self.contacts, "contacts")]
+        if any(k < 1 for k in self.contacts):
+            raise ValidationError(f"contact counts must be >= 1, got {self.contacts}")
+        self.noise = [float(s) for s in _as_list(self.noise, "noise")]
+        if any(s < 0 for s in self.noise):
+            raise ValidationError(f"noise levels must be >= 0 m, got {self.noise}")
+        self.modes = [str(m) for m in _as_list(self.modes, "modes")]
+        bad = set(self.modes) - {"passive", "active"}
+        if bad:
+            raise ValidationError(f"modes must be 'passive' or 'active', got {sorted(bad)}")
+        self.planners = [str(p) for p in _as_list(self.planners, "planners")]
+        if set(self.planners) - set(PLANNERS):
+            raise ValidationError(f"planners must be among {PLANNERS}, got {self.planners}")
+        self.seeds = list(range(self.seeds)) if isinstance(self.seeds, int) else [int(s) for s in self.seeds]
+        if not self.seeds:
+            raise ValidationError("sweep seeds must not be empty")
+        if self.region not in REGIONS:
+            raise ValidationError(f"region must be one of {REGIONS}, got {self.region!r}")
+
+    # -- construction ------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: dict) -> "Sweep":
+        known = set(cls.__dataclass_fields__)
+        extra = set(d) - known
+        if extra:
+            raise ValidationError(f"unknown sweep keys {sorted(extra)}; expected some of {sorted(known)}")
+        return cls(**d)
+
+    @classmethod
+    def from_toml(cls, path) -> "Sweep":
+        """Read a sweep from a TOML file (top-level keys are the constructor's arguments)."""
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            import tomli as tomllib
+        p = Path(path)
+        if not p.exists():
+            raise ValidationError(f"sweep file not found: {p}")
+        try:
+            d = tomllib.loads(p.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ValidationError(f"{p}: not valid TOML: {exc}") from exc
+        return cls.from_dict(d)
+
+    # -- the grid ----------------------------------------------------------------------
+    def _common(self):
+        return {"region": self.region, "sigma_pos": self.sigma_pos, "sigma_nor": self.sigma_nor,
+                "normal_noise": self.normal_noise, "success_threshold": self.success}
+
+    def trials(self) -> list:
+        """Every trial's parameters (dicts of plain values), in a fixed order, with ``trial_id``."""
+        out = []
+        common = self._common()
+        for mode in self.modes:
+            if mode == "passive":
+                grid = itertools.product(self.meshes, self.estimators, self.contacts, self.noise, self.seeds)
+                for mesh, est, k, noise, seed in grid:
+                    opts = {k2: v for k2, v in est.items() if k2 != "name"}
+                    out.append({"mode": mode, "mesh": mesh, "estimator": est["name"], "planner": "",
+                                "options": json.dumps(opts, sort_keys=True), "contacts": k,
+                                "noise": noise, "seed": seed, **common})
+            else:
+                grid = itertools.product(self.meshes, self.planners, self.contacts, self.noise, self.seeds)
+                for mesh, planner, k, noise, seed in grid:
+                    out.append({"mode": mode, "mesh": mesh, "estimator": "smc", "planner": planner,
+                                "options": "{}", "contacts": k, "noise": noise, "seed": seed, **common})
+        for p in out:
+            p["trial_id"] = trial_id(p)
+        return out
+
+    def __len__(self) -> int:
+        return len(self.trials())

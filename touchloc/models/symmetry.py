@@ -1,0 +1,267 @@
+"""Rotational symmetries of a mesh, found by testing rather than declared.
+
+A symmetry is a rotation ``g`` about the surface centroid ``c`` (``x -> R (x - c) + c``,
+object frame) that maps the surface onto itself within a tolerance. Two poses ``T`` and
+``T @ g`` place the same surface in the world, so a pose error that ignores this punishes
+an estimator for a question the contacts cannot answer.
+
+Method: the centroid and principal axes of the surface come from exact area moments of
+the triangles. Candidate rotations are built on those axes: every turn of 2 pi / n
+(n <= 12) about each principal axis, a continuous family about an axis whose two other
+moments are equal (a body of revolution), and half-turns about the axes perpendicular to
+it. A candidate is accepted when every one of a fixed set of surface samples, moved by
+it, lies within ``tol`` of the surface (``MeshObject.closest_points``). Accepted rotations
+are closed under composition. Equal moments in all three directions are tested as a
+sphere; other shapes with three equal moments (a cube) are only searched about the
+principal axes that the eigen-decomposition happens to return, so some of their
+symmetries may be missed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..errors import ValidationError
+
+__all__ = ["Symmetry", "find_symmetries", "surface_moments"]
+
+#: angles (rad) tried to accept a continuous axis: irrational fractions of a turn
+_CONTINUOUS_TEST = np.array([0.3183, 0.7071, 1.4142, 2.2361, 3.0, 4.1231, 5.5678])
+
+
+@dataclass(frozen=True)
+class Symmetry:
+    """The rotational symmetries of a surface.
+
+    Attributes
+    ----------
+    rotations : (G, 3, 3) float
+        A finite group of rotations about ``center`` (identity first). For a continuous
+        axis these are the extra discrete elements (identity, and a half-turn about a
+        perpendicular axis when the body is also symmetric end to end); the full group is
+        every turn about ``axis`` composed with them.
+    center : (3,) float
+        Object-frame point every symmetry fixes (the area centroid of the surface).
+    axis : (3,) float or None
+        Unit axis (object frame) of continuous rotational symmetry, or None.
+    continuous : bool
+        True for a body of revolution or a sphere.
+    sphere : bool
+        Every rotation about ``center`` is a symmetry.
+    tol : float
+        The tolerance (m) the rotations were accepted with.
+    quantile : float
+        The quantile of sample displacements that had to be within ``tol``.
+    """
+
+    rotations: np.ndarray
+    center: np.ndarray
+    axis: np.ndarray | None = None
+    continuous: bool = False
+    sphere: bool = False
+    tol: float = 0.0
+    quantile: float = 1.0
+
+    @property
+    def order(self) -> float:
+        """Number of symmetries (``inf`` for a continuous family)."""
+        return float("inf") if self.continuous else len(self.rotations)
+
+    @property
+    def transforms(self) -> np.ndarray:
+        """(G, 4, 4) object-frame rigid transforms of :attr:`rotations` (about ``center``)."""
+        G = len(self.rotations)
+        out = np.zeros((G, 4, 4))
+        out[:, :3, :3] = self.rotations
+        out[:, :3, 3] = self.center - self.rotations @ self.center
+        out[:, 3, 3] = 1.0
+        return out
+
+    def rotation_error(self, R_est, R_true) -> np.ndarray:
+        """Smallest rotation angle (rad) from ``R_true`` to ``R_est`` over the group.
+
+        Parameters
+        ----------
+        R_est : (N, 3, 3) or (3, 3) float
+        R_true : (3, 3) float
+
+        Returns
+        -------
+        (N,) float
+        """
+        Re = np.asarray(R_est, dtype=float).reshape(-1, 3, 3)
+        Rt = np.asarray(R_true, dtype=float).reshape(3, 3)
+        if self.sphere:
+            return np.zeros(len(Re))
+        rel = np.einsum("ji,njk->nik", Rt, Re)  # R_true^T R_est, object frame
+        best = np.full(len(Re), np.inf)
+        for g in self.rotations:
+            m = rel @ g.T  # R_rel g^-1
+            if self.continuous:
+                # distance to the subgroup of turns about a: the angle between a and m a
+                c = np.clip(m @ self.axis @ self.axis, -1.0, 1.0)
+                ang = np.arccos(c)
+            else:
+                ang = np.arccos(np.clip((np.trace(m, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+            best = np.minimum(best, ang)
+        return best
+
+
+def surface_moments(obj):
+    """Area, centroid (3,) and central second moment (3, 3) of the surface (exact)."""
+    tri = obj.triangles
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    A = area.sum()
+    s = a + b + c
+    centroid = (area[:, None] * s).sum(0) / (3.0 * A)
+    # integral of x x^T over a triangle: A/12 (s s^T + a a^T + b b^T + c c^T)
+    M = np.einsum("f,fi,fj->ij", area, s, s) + sum(np.einsum("f,fi,fj->ij", area, v, v) for v in (a, b, c))
+    M = M / (12.0 * A)
+    return float(A), centroid, M - np.outer(centroid, centroid)
+
+
+def _axis_rot(axis, angles):
+    return Rotation.from_rotvec(np.outer(np.atleast_1d(angles), axis)).as_matrix()
+
+
+def _perpendicular(axis):
+    u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    return u, np.cross(axis, u)
+
+
+class _Tester:
+    """Worst displacement (m) of surface samples under candidate rotations about c."""
+
+    def __init__(self, obj, center, n, rng, quantile):
+        self.obj = obj
+        self.quantile = quantile
+        self.c = center
+        self.p = obj.sample_surface(n, rng=rng)[0] - center
+
+    def __call__(self, R):
+        R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
+        q = np.einsum("gij,nj->gni", R, self.p) + self.c
+        _, _, d = self.obj.closest_points(q.reshape(-1, 3))
+        return np.quantile(d.reshape(len(R), -1), self.quantile, axis=1)
+
+
+def _close(rots, limit=120):
+    """Closure of a set of rotations under composition (deduplicated), identity first."""
+    out = [np.eye(3)]
+
+    def add(R):
+        for S in out:
+            if np.abs(S - R).max() < 1e-6:
+                return False
+        out.append(R)
+        return True
+
+    for R in rots:
+        add(R)
+    changed = True
+    while changed and len(out) < limit:
+        changed = False
+        for A in list(out):
+            for B in list(out):
+                if add(A @ B):
+                    changed = True
+    return np.array(out)
+
+
+def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_samples: int = 400,
+                    rng=0, max_order: int = 12) -> Symmetry:
+    """The rotations that map ``obj``'s surface onto itself within ``tol``.
+
+    Parameters
+    ----------
+    obj : MeshObject
+    tol : float, optional
+        Largest distance (m) of a moved surface sample from the surface; default 2 % of
+        the largest extent (this absorbs the facets of a tessellated cylinder).
+    quantile : float
+        Which quantile of the moved samples' distances must be within ``tol``: 1.0
+        demands all of them; the default 0.95 lets small features (a can's pull tab,
+        under 5 % of the area) not break a symmetry that the rest of the surface has.
+    n_samples : int
+        Surface samples used to test each candidate.
+    rng : None, int or Generator
+        For the samples (fixed by default, so the answer is repeatable).
+    max_order : int
+        Largest n of the 2 pi / n turns tried about each axis.
+
+    Returns
+    -------
+    Symmetry
+    """
+    if tol is None:
+        tol = 0.02 * float(obj.extents.max())
+    if not (np.isfinite(tol) and tol > 0):
+        raise ValidationError(f"tol must be a positive distance in metres, got {tol}")
+    _, c, C = surface_moments(obj)
+    ev, vec = np.linalg.eigh(C)
+    if not 0 < quantile <= 1:
+        raise ValidationError(f"quantile must be in (0, 1], got {quantile}")
+    test = _Tester(obj, c, int(n_samples), rng, float(quantile))
+    rel = lambda i, j: abs(ev[i] - ev[j]) / max(ev.max(), 1e-30)  # noqa: E731
+    eq_tol = 0.03
+
+    # a sphere: all moments equal and random rotations fit
+    if rel(0, 2) < eq_tol:
+        R = Rotation.random(6, random_state=1).as_matrix()
+        if np.all(test(R) <= tol):
+            return Symmetry(np.eye(3)[None], c, None, True, True, tol, quantile)
+    # an axis whose two other moments are equal may be an axis of revolution
+    special_i = None
+    if rel(0, 1) < eq_tol and rel(1, 2) >= eq_tol:
+        special_i = 2
+    elif rel(1, 2) < eq_tol and rel(0, 1) >= eq_tol:
+        special_i = 0
+    special = None if special_i is None else vec[:, special_i]
+    if special is not None:
+        if np.all(test(_axis_rot(special, _CONTINUOUS_TEST)) <= tol):
+            a = special / np.linalg.norm(special)
+            u, v = _perpendicular(a)
+            phis = np.linspace(0, np.pi, 19)[:-1]
+            flips = np.array([_axis_rot(np.cos(p) * u + np.sin(p) * v, np.pi)[0] for p in phis])
+            # an end-to-end flip turns about the middle of the body along the axis, which
+            # a small feature at one end (a pull tab) moves the area centroid away from
+            h = obj.mesh.vertices @ a
+            mid = c + a * (0.5 * (h.min() + h.max()) - c @ a)
+            best = None
+            for centre in (c, mid):
+                flip_test = _Tester(obj, centre, int(n_samples), rng, float(quantile))
+                ok = flip_test(flips) <= tol
+                if ok.any():
+                    best = (centre, flips[int(np.argmax(ok))])
+                    break
+            rots = [np.eye(3)] + ([best[1]] if best else [])
+            centre = best[0] if best else c
+            return Symmetry(np.array(rots), centre, a, True, False, tol, quantile)
+    found = []
+    for i in range(3):
+        for n in range(2, max_order + 1):
+            if n > 2 and i != special_i:
+                break  # distinct moments admit only half-turns about a principal axis
+            R = _axis_rot(vec[:, i], 2 * np.pi / n)
+            if test(R)[0] <= tol:
+                found.append(R[0])
+    if special is not None:
+        # half-turns about axes perpendicular to the special one, at 1 degree steps
+        u, v = _perpendicular(special)
+        phis = np.radians(np.arange(0.0, 180.0, 1.0))
+        cand = np.array([_axis_rot(np.cos(p) * u + np.sin(p) * v, np.pi)[0] for p in phis])
+        d = test(cand)
+        for i in np.flatnonzero(d <= tol):
+            # keep local minima only (neighbouring angles pass around the same flip)
+            if d[i] <= d[(i - 1) % len(d)] and d[i] <= d[(i + 1) % len(d)]:
+                found.append(cand[i])
+    group = _close(found)
+    # keep only the composed elements that pass themselves (closure of near-symmetries)
+    keep = test(group) <= tol
+    keep[0] = True
+    return Symmetry(group[keep], c, None, False, False, tol, quantile)
