@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     if args.only:
         mods = [m for m in mods if m.stem[len("bench_"):] in args.only]
     out = Path(args.out)
-    sections = _existing_sections(out)
+    new = {}
     for path in mods:
         spec = importlib.util.spec_from_file_location(path.stem, path)
         mod = importlib.util.module_from_spec(spec)
@@ -68,9 +68,12 @@ def main(argv=None) -> int:
         dt = time.perf_counter() - t0
         cmd = f"python benchmarks/run.py --only {path.stem[6:]}" + (" --quick" if args.quick else "")
         stamp = _dt.date.today().isoformat()
-        sections[path.stem] = (f"<!-- bench: {path.stem} -->\n## {mod.TITLE}\n\n_Measured {stamp} on {machine()}; "
+        new[path.stem] = (f"<!-- bench: {path.stem} -->\n## {mod.TITLE}\n\n_Measured {stamp} on {machine()}; "
                                f"`{cmd}` ({dt:.0f} s)._\n\n{body.strip()}\n")
         print(body, flush=True)
+    # re-read the file now: other sections may have been rewritten while these ran
+    sections = _existing_sections(out)
+    sections.update(new)
     text = "# Benchmarks\n\nWritten by `make bench` (`python benchmarks/run.py`); each section says how it was measured.\n\n"
     text += "\n".join(sections[k] for k in sorted(sections))
     out.write_text(text)
