@@ -142,8 +142,12 @@ class GPIS:
             K[:, g] *= (q[:, b[g]] - X[g, b[g]][None, :]) / (self.l * self.l)
         return K
 
-    def mean(self, Q) -> np.ndarray:
-        """(M,) posterior mean of f at query points."""
+    def mean(self, Q, *, dtype=np.float64) -> np.ndarray:
+        """(M,) posterior mean of f at query points.
+
+        ``dtype=np.float32`` halves the time (for grids fed to marching cubes, where
+        errors of 1e-6 relative do not matter).
+        """
         Q = np.asarray(Q, float).reshape(-1, 3)
         m, _ = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
@@ -155,14 +159,21 @@ class GPIS:
         w0 = np.where(kind < 0, a, 0.0)
         wb = [np.where(kind == b, a, 0.0) / l2 for b in range(3)]
         w0 = w0 - sum(wb[b] * X[:, b] for b in range(3))
-        W = np.stack([w0] + wb, axis=1)  # (n, 4)
-        xx = np.sum(X * X, 1)
+        W = np.stack([w0] + wb, axis=1).astype(dtype)  # (n, 4)
+        Xd = (X / self.l).astype(dtype)
+        xx = np.sum(Xd * Xd, 1)
         out = np.empty(len(Q))
-        for i in range(0, len(Q), 4 * _CHUNK):
-            q = Q[i:i + 4 * _CHUNK]
-            d2 = np.sum(q * q, 1)[:, None] + xx[None, :] - 2.0 * q @ X.T
-            K = np.exp(-0.5 * np.maximum(d2, 0.0) / l2)
-            KW = K @ W
+        for i in range(0, len(Q), _CHUNK):
+            q = Q[i:i + _CHUNK]
+            qd = (q / self.l).astype(dtype)
+            K = qd @ Xd.T
+            K *= -2.0
+            K += xx[None, :]
+            K += np.sum(qd * qd, 1)[:, None]
+            np.maximum(K, 0.0, out=K)
+            K *= -0.5
+            np.exp(K, out=K)
+            KW = (K @ W).astype(float)
             out[i:i + len(q)] = self.s2 * (KW[:, 0] + np.einsum("ij,ij->i", q, KW[:, 1:]))
         return m + out
 

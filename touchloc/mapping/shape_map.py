@@ -354,7 +354,7 @@ class ShapeMap:
         if self.method == "occupancy":
             G = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
             return self.signed_distance(G).reshape(tuple(n)), self.lo.copy(), h
-        return _coarse_to_fine(self._gp.mean, axes, h), self.lo.copy(), h
+        return _coarse_to_fine(lambda Q: self._gp.mean(Q, dtype=np.float32), axes, h), self.lo.copy(), h
 
     def to_mesh(self, resolution: int | None = None, *, name: str = "map"):
         """The mean surface as a :class:`~touchloc.models.MeshObject` (marching cubes).
