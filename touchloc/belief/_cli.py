@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..cli import add_mesh_argument, diagnose, load_mesh, split_mesh_spec
+
 ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "ss+mcmc")
-
-
-def _load_mesh(spec: str, scale: float | None):
-    from ..data import MESHES, load_object
-    from ..models import MeshObject
-
-    if spec in MESHES and not Path(spec).exists():
-        return load_object(spec)
-    return MeshObject.from_file(spec, scale=1.0 if scale is None else scale)
 
 
 def _region(args):
@@ -32,9 +27,9 @@ def register(sub):
     p = sub.add_parser("localize", help="localise a mesh from a CSV of contacts",
                        description="Localise a known mesh from measured contacts (CSV: x,y,z[,nx,ny,nz] "
                                    "in metres, world frame) and print the MAP pose, its spread and the time.")
-    p.add_argument("--mesh", required=True, help="mesh file (any format trimesh reads) or a bundled name")
-    p.add_argument("--scale", type=float, default=None, help="factor to metres (e.g. 0.001 for mm files)")
-    p.add_argument("--contacts", required=True, help="CSV file of contacts")
+    add_mesh_argument(p, required=True)
+    p.add_argument("--contacts", help="CSV of contacts: x,y,z[,nx,ny,nz] in metres, world frame; a header "
+                                      "line names the columns in any order; separators , ; tab or spaces")
     p.add_argument("--method", choices=ESTIMATORS, default="ss",
                    help="ss: Scaling Series (default), pf: importance sampling, hf: histogram (<= 3 DOF), "
                         "apf: annealed PF, mpf: manifold PF, ss+mcmc: Scaling Series refined by MCMC")
@@ -46,13 +41,20 @@ def register(sub):
     p.add_argument("--particles", type=int, default=20000, help="particles for pf/apf/mpf")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", help="write a figure of mesh, contacts and particles (PNG)")
-    p.add_argument("--save", help="write the belief (poses and log-weights) to an .npz file")
+    p.add_argument("--save", help="write the belief (poses, log-weights, region, model parameters, MAP pose, "
+                                  "contacts) to an .npz file; read it with touchloc.belief.load_belief")
+    p.add_argument("--load", help="skip localisation: read a belief written by --save and report (and plot) it")
+    p.add_argument("--json", action="store_true",
+                   help="print the result as JSON: the MAP pose as a 4x4 matrix, quat_xyzw and translation (m)")
     p.set_defaults(func=run_localize)
 
     q = sub.add_parser("identify", help="which of several meshes explains the contacts?",
                        description="Posterior probability of each candidate mesh given contacts "
                                    "(recognition by localisation, uniform pose prior over the region).")
-    q.add_argument("--meshes", nargs="+", required=True, help="mesh files or bundled names")
+    q.add_argument("--meshes", nargs="+", required=True,
+                   help="mesh files or bundled names; PATH:SCALE gives one mesh its own scale (e.g. duck.obj:0.001)")
+    q.add_argument("--scale", default=None, help="factor to metres for every mesh without its own :SCALE "
+                                                 "(e.g. 0.001 for files in millimetres)")
     q.add_argument("--contacts", required=True)
     q.add_argument("--center", nargs="+", default=[0.0, 0.0, 0.0])
     q.add_argument("--half-extent", type=float, default=0.2)
@@ -60,6 +62,7 @@ def register(sub):
     q.add_argument("--sigma-pos", type=float, default=0.002)
     q.add_argument("--sigma-nor", type=float, default=0.1)
     q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--json", action="store_true", help="print the posterior as JSON")
     q.set_defaults(func=run_identify)
 
 
@@ -70,55 +73,122 @@ def _model(obj, args):
 
 
 def run_localize(args) -> int:
+    from ..errors import ValidationError
     from ..models import Contacts
     from . import (MCMC, AnnealedParticleFilter, HistogramFilter, ManifoldParticleFilter, ParticleFilter,
-                   ScalingSeries)
+                   ScalingSeries, load_belief, pose_to_dict, save_belief)
 
-    obj = _load_mesh(args.mesh, args.scale)
-    contacts = Contacts.from_csv(args.contacts)
-    region = _region(args)
-    model = _model(obj, args)
-    est = {
-        "ss": lambda: ScalingSeries(model, rng=args.seed),
-        "ss+mcmc": lambda: ScalingSeries(model, rng=args.seed),
-        "pf": lambda: ParticleFilter(model, n_particles=args.particles, rng=args.seed),
-        "hf": lambda: HistogramFilter(model),
-        "apf": lambda: AnnealedParticleFilter(model, args.particles, rng=args.seed),
-        "mpf": lambda: ManifoldParticleFilter(model, args.particles, rng=args.seed),
-    }[args.method]()
-    print(f"{obj}\n{len(contacts)} contacts, {region}, method {args.method}")
-    t0 = time.perf_counter()
-    belief = est.localize(contacts, region)
-    if args.method == "ss+mcmc":
-        belief = MCMC(model, rng=args.seed).refine(contacts, belief)
-    dt = time.perf_counter() - t0
+    obj = load_mesh(args.mesh, args.scale)
+    out = sys.stderr if args.json else sys.stdout
+    dt = None
+    if args.load:
+        belief, contacts = load_belief(args.load)
+        if args.contacts:
+            contacts = Contacts.from_csv(args.contacts)
+        if contacts is None:
+            raise ValidationError(f"{args.load} holds no contacts: give --contacts")
+        region = belief.region if belief.region is not None else _region(args)
+        print(f"{obj}\nloaded {args.load}: {len(belief)} particles, {len(contacts)} contacts", file=out)
+    else:
+        if not args.contacts:
+            raise ValidationError("give --contacts CSV (or --load a saved belief)")
+        contacts = Contacts.from_csv(args.contacts)
+        region = _region(args)
+        model = _model(obj, args)
+        est = {
+            "ss": lambda: ScalingSeries(model, rng=args.seed),
+            "ss+mcmc": lambda: ScalingSeries(model, rng=args.seed),
+            "pf": lambda: ParticleFilter(model, n_particles=args.particles, rng=args.seed),
+            "hf": lambda: HistogramFilter(model),
+            "apf": lambda: AnnealedParticleFilter(model, args.particles, rng=args.seed),
+            "mpf": lambda: ManifoldParticleFilter(model, args.particles, rng=args.seed),
+        }[args.method]()
+        print(f"{obj}\n{len(contacts)} contacts, {region}, method {args.method}", file=out, flush=True)
+        t0 = time.perf_counter()
+        belief = est.localize(contacts, region)
+        if args.method == "ss+mcmc":
+            belief = MCMC(model, rng=args.seed).refine(contacts, belief)
+        dt = time.perf_counter() - t0
     T = belief.map_pose()
-    np.set_printoptions(precision=5, suppress=True)
-    print("MAP pose T_world_object:")
-    print(T)
-    print(belief.summary())
-    print(f"time: {dt:.2f} s")
-    if args.save:
-        np.savez(args.save, poses=belief.poses, log_weights=belief.log_weights)
-        print(f"wrote {args.save}")
+    if args.json:
+        doc = {"map_pose": pose_to_dict(T), "degenerate": belief.degenerate, "particles": len(belief),
+               "ess": float(belief.ess()), "mesh": obj.name, "contacts": len(contacts)}
+        if dt is not None:
+            doc["time_s"] = dt
+        print(json.dumps(doc, indent=2))
+    else:
+        np.set_printoptions(precision=5, suppress=True)
+        q = pose_to_dict(T)
+        print("MAP pose T_world_object:")
+        print(T)
+        print(f"quat_xyzw = {np.round(q['quat_xyzw'], 6).tolist()}, translation = "
+              f"{np.round(q['translation'], 6).tolist()} m")
+        print(belief.summary())
+        if dt is not None:
+            print(f"time: {dt:.2f} s")
+    if belief.degenerate:
+        print("touchloc localize: the result is degenerate (no pose in the region explains the contacts):",
+              file=sys.stderr)
+        for line in diagnose(obj, contacts, region, belief, sigma_pos=args.sigma_pos):
+            print(f"  - {line}", file=sys.stderr)
+    if args.save and not args.load:
+        path = save_belief(args.save, belief, contacts=contacts, model=model,
+                           extra={"method": args.method, "mesh_spec": args.mesh, "scale": args.scale})
+        print(f"wrote {path}", file=out)
     if args.plot:
         plot_belief(obj, belief, contacts, args.plot)
-        print(f"wrote {args.plot}")
+        print(f"wrote {args.plot}", file=out)
     return 1 if belief.degenerate else 0
 
 
+def _candidates(specs, scale):
+    """Load candidate meshes under unique names (parent/stem when stems collide)."""
+    from ..errors import ValidationError
+
+    parsed = [split_mesh_spec(s) for s in specs]
+    paths = [Path(p) for p, _ in parsed]
+    names = [p.stem if p.suffix else str(p) for p in paths]
+    for depth in range(1, 8):
+        dup = {n for n in names if names.count(n) > 1}
+        if not dup:
+            break
+        names = [("/".join(p.with_suffix("").parts[-depth - 1:]) if n in dup else n) for n, p in zip(names, paths)]
+    if len(set(names)) != len(names):
+        raise ValidationError(f"--meshes lists the same mesh twice: {specs}")
+    return {n: load_mesh(p, s if s is not None else scale, name=n) for n, (p, s) in zip(names, parsed)}
+
+
 def run_identify(args) -> int:
+    from ..errors import BeliefDegenerateError
     from ..models import Contacts
     from . import identify
 
-    objs = [_load_mesh(m, None) for m in args.meshes]
+    objs = _candidates(args.meshes, args.scale)
     contacts = Contacts.from_csv(args.contacts)
-    models = {o.name: _model(o, args) for o in objs}
+    region = _region(args)
+    models = {n: _model(o, args) for n, o in objs.items()}
     t0 = time.perf_counter()
-    post = identify(models, contacts, _region(args), rng=args.seed)
-    for name, p in sorted(post.items(), key=lambda kv: -kv[1]):
-        print(f"{name:>16s}  {p:.4f}")
-    print(f"time: {time.perf_counter() - t0:.1f} s")
+    try:
+        post = identify(models, contacts, region, rng=args.seed)
+    except BeliefDegenerateError as exc:
+        if args.json:
+            print(json.dumps({"identity": None, "reason": str(exc)}))
+        else:
+            print("none")
+        print(f"touchloc identify: {exc}", file=sys.stderr)
+        first = next(iter(objs.values()))
+        for line in diagnose(first, contacts, region, sigma_pos=args.sigma_pos):
+            print(f"  - {line}", file=sys.stderr)
+        return 1
+    ranked = sorted(post.items(), key=lambda kv: -kv[1])
+    if args.json:
+        print(json.dumps({"identity": ranked[0][0], "posterior": dict(ranked),
+                          "time_s": time.perf_counter() - t0}, indent=2))
+    else:
+        width = max(16, max(len(n) for n in post))
+        for name, p in ranked:
+            print(f"{name:>{width}s}  {p:.4f}")
+        print(f"time: {time.perf_counter() - t0:.1f} s")
     return 0
 
 
