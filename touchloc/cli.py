@@ -193,3 +193,7 @@ def diagnose(obj, contacts, region, belief=None, *, sigma_pos: float | None = No
     lines.append("check: units (metres everywhere; --scale for the mesh), the region (--center, --half-extent, "
                  "--rotation), and that the mesh is the touched object")
     return lines
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

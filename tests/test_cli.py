@@ -1,0 +1,155 @@
+"""The ``touchloc`` command: warnings, interruption, mesh files, outputs."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from touchloc import cli
+from touchloc.belief import PoseRegion, load_belief
+from touchloc.models import Contacts
+
+
+SCRIPT = Path(sys.executable).with_name("touchloc")
+COMMAND = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "touchloc.cli"]
+
+
+def touchloc(*argv, timeout=600):
+    """Run the installed command in a new process, as a user would."""
+    return subprocess.run([*COMMAND, *map(str, argv)], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def mug_csv(tmp_path_factory, objects):
+    """Contacts on the mug at a planar pose; in metres and in millimetres."""
+    d = tmp_path_factory.mktemp("contacts")
+    obj = objects["mug"]
+    T = np.eye(4)
+    c, s = np.cos(0.7), np.sin(0.7)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [0.004, -0.003, -obj.bounds[0][2]]
+    pts, nrm, _ = obj.sample_surface(20, rng=3)
+    con = Contacts(pts, nrm).transform(T)
+    con.to_csv(d / "m.csv")
+    Contacts(con.points * 1000, con.normals).to_csv(d / "mm.csv")
+    return d / "m.csv", d / "mm.csv", T
+
+
+PLANAR = ["--rotation", "planar", "--half-extent", "0.01", "--center", "0", "0", "0.0"]
+
+
+def test_verbosity_options_on_every_subcommand():
+    parser = cli.build_parser()
+    for name, sub in parser._subparsers._group_actions[0].choices.items():
+        opts = {o for a in sub._actions for o in a.option_strings}
+        assert {"-q", "--quiet", "-v", "--verbose"} <= opts, name
+    a = parser.parse_args(["localize", "--mesh", "mug", "--contacts", "c.csv", "-v"])
+    assert a.verbose == 1 and not a.quiet
+    a = parser.parse_args(["-q", "localize", "--mesh", "mug", "--contacts", "c.csv"])
+    assert a.quiet and a.verbose == 0
+    with pytest.raises(SystemExit):
+        parser.parse_args(["localize", "--mesh", "mug", "--contacts", "c.csv", "-q", "-v"])
+
+
+def test_warnings_reach_the_terminal_unless_quiet(tmp_path, capsys):
+    bad = tmp_path / "c.csv"
+    bad.write_text("1,2,3\n")
+
+    def warn_and_fail(args):
+        warnings.warn("look here", UserWarning)
+        return 0
+
+    for argv, shown in ((["localize"], True), (["-q", "localize"], False), (["-v", "localize"], True)):
+        parser = cli.build_parser()
+        args = parser.parse_args(argv + ["--mesh", "mug", "--contacts", str(bad)])
+        args.func = warn_and_fail
+        parser.parse_args = lambda argv=None, a=args: a
+        cli.build_parser, orig = (lambda: parser), cli.build_parser
+        try:
+            assert cli.main([]) == 0
+        finally:
+            cli.build_parser = orig
+        err = capsys.readouterr().err
+        assert ("look here" in err) == shown
+        if "-v" in argv:
+            assert "UserWarning" in err
+
+
+def test_degenerate_result_says_why_and_suggests_millimetres(mug_csv):
+    _, mm, _ = mug_csv
+    r = touchloc("localize", "--mesh", "mug", "--contacts", mm, "--method", "hf", *PLANAR)
+    assert r.returncode == 1
+    assert "degenerate" in r.stderr
+    assert "millimetres" in r.stderr and "--center" in r.stderr
+    assert "touchloc: warning:" in r.stderr  # the estimator's own warning is shown, too
+
+
+def test_bad_csv_is_one_line_error_not_a_traceback(tmp_path):
+    p = tmp_path / "c.csv"
+    p.write_text("x;y;z\n1;2\n")
+    r = touchloc("localize", "--mesh", "mug", "--contacts", p)
+    assert r.returncode == 1
+    assert "line 2" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_ctrl_c_ends_with_one_line_and_exit_130(mug_csv):
+    m, _, _ = mug_csv
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([*COMMAND, "localize", "--mesh", "mug", "--contacts", str(m),
+                          "--half-extent", "0.2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        for line in p.stdout:  # wait until the estimator runs
+            if "method ss" in line:
+                break
+        time.sleep(1.0)
+        assert p.poll() is None, "finished before it could be interrupted"
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "touchloc localize: interrupted"
+
+
+def test_progress_lines_on_a_non_tty_stderr(capsys):
+    from touchloc._util import progress
+
+    assert list(progress(range(5), desc="work", interval=0.0)) == list(range(5))
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("work: 0/5") and err[-1].startswith("work: 4/5") and len(err) == 5
+    assert list(progress(range(5), desc="work")) == list(range(5))
+    assert capsys.readouterr().err == ""  # at most a line per interval (5 s)
+    assert list(progress(range(3), desc="w", enabled=False, interval=0.0)) == [0, 1, 2]
+    assert capsys.readouterr().err == ""
+
+
+def test_save_load_json_round_trip(mug_csv, tmp_path):
+    m, _, T = mug_csv
+    path = tmp_path / "b.npz"
+    r = touchloc("localize", "--mesh", "mug", "--contacts", m, "--method", "hf", *PLANAR, "--save", path, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    M = np.array(doc["map_pose"]["matrix"])
+    from scipy.spatial.transform import Rotation
+
+    assert np.allclose(Rotation.from_quat(doc["map_pose"]["quat_xyzw"]).as_matrix(), M[:3, :3], atol=1e-9)
+    assert np.allclose(doc["map_pose"]["translation"], M[:3, 3])
+    assert np.linalg.norm(M[:2, 3] - T[:2, 3]) < 0.005
+    belief, contacts = load_belief(path)
+    assert np.allclose(belief.map_pose(), M) and np.allclose(belief.info["map_pose"], M)
+    c0 = Contacts.from_csv(m)
+    assert np.allclose(contacts.points, c0.points) and np.allclose(contacts.normals, c0.normals)
+    assert isinstance(belief.region, PoseRegion) and belief.region.dim == 3
+    assert belief.info["model"]["sigma_pos"] == 0.002 and belief.info["method"] == "hf"
+    r2 = touchloc("localize", "--mesh", "mug", "--load", path, "--json")
+    assert r2.returncode == 0, r2.stderr
+    assert np.allclose(json.loads(r2.stdout)["map_pose"]["matrix"], M)
