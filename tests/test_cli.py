@@ -153,3 +153,80 @@ def test_save_load_json_round_trip(mug_csv, tmp_path):
     r2 = touchloc("localize", "--mesh", "mug", "--load", path, "--json")
     assert r2.returncode == 0, r2.stderr
     assert np.allclose(json.loads(r2.stdout)["map_pose"]["matrix"], M)
+
+
+# -- meshes and identify -------------------------------------------------------------------
+def test_load_mesh_scales_files_and_bundled_names(tmp_path, objects):
+    from touchloc.data import mesh_path
+
+    ref = objects["mug"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.allclose(cli.load_mesh("mug").extents, ref.extents)
+        assert np.allclose(cli.load_mesh("mug", "2").extents, 2 * ref.extents)
+        mm = tmp_path / "mug_mm.obj"
+        cli.load_mesh("mug", 1000.0).mesh.export(mm)
+        assert np.allclose(cli.load_mesh(str(mm), 0.001).extents, ref.extents, rtol=1e-6)
+    assert cli.split_mesh_spec(f"{mm}:0.001") == (str(mm), 0.001)
+    assert cli.split_mesh_spec(str(mesh_path("mug"))) == (str(mesh_path("mug")), None)
+    for bad in ("0", "-1", "mm", "inf"):
+        with pytest.raises(Exception, match="--scale"):
+            cli.load_mesh("mug", bad)
+    with pytest.raises(Exception, match="no such file"):
+        cli.load_mesh(str(tmp_path / "none.obj"))
+
+
+@pytest.fixture(scope="module")
+def ycb_like(tmp_path_factory, objects):
+    """Two candidates with the same file name in different folders, the second in millimetres."""
+    d = tmp_path_factory.mktemp("ycb")
+    (d / "mug").mkdir(), (d / "can").mkdir()
+    objects["mug"].mesh.export(d / "mug" / "textured.obj")
+    can = objects["can"].mesh.copy()
+    can.apply_scale(1000.0)
+    can.export(d / "can" / "textured.obj")
+    return d / "mug" / "textured.obj", d / "can" / "textured.obj"
+
+
+def test_identify_unique_names_and_per_mesh_scale(ycb_like, mug_csv):
+    m, _, _ = mug_csv
+    mug, can = ycb_like
+    r = touchloc("identify", "--meshes", mug, f"{can}:0.001", "--contacts", m, *PLANAR, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert set(doc["posterior"]) == {"mug/textured", "can/textured"}
+    assert doc["identity"] == "mug/textured" and doc["posterior"]["mug/textured"] > 0.9
+
+
+def test_identify_prints_none_when_no_candidate_explains_the_contacts(mug_csv):
+    _, mm, _ = mug_csv
+    r = touchloc("identify", "--meshes", "mug", "can", "--contacts", mm, *PLANAR)
+    assert r.returncode == 1
+    assert r.stdout.strip().splitlines()[0] == "none"
+    assert "millimetres" in r.stderr
+
+
+def test_identify_api_refuses_when_every_candidate_is_degenerate(objects, mug_csv):
+    from touchloc.belief import identify
+    from touchloc.errors import BeliefDegenerateError
+    from touchloc.models import ProximityModel
+
+    m, _, _ = mug_csv
+    far = Contacts.from_csv(m).transform(np.array([[1, 0, 0, 1.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
+    region = PoseRegion.planar((0, 0), 0.01, z=-objects["mug"].bounds[0][2])
+    models = {n: ProximityModel(objects[n], 0.002, 0.1) for n in ("mug", "can")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(BeliefDegenerateError, match="no candidate"):
+            identify(models, far, region, rng=0)
+        post = identify(models, Contacts.from_csv(m), region, rng=0)
+    assert post["mug"] > 0.9
+
+
+def test_active_takes_a_mesh_file_with_scale_and_prints_the_full_pose(ycb_like, tmp_path):
+    _, can_mm = ycb_like
+    r = touchloc("active", "--mesh", can_mm, "--scale", "0.001", "--setting", "6dof", "--max-touches", "1",
+                 "--particles", "200", "--candidates", "8", "--out", "")
+    assert r.returncode == 0, r.stderr
+    assert "extents=[0.0" in r.stdout  # scaled to metres
+    assert "roll/pitch/yaw" in r.stdout and "quat_xyzw" in r.stdout

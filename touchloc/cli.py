@@ -139,11 +139,15 @@ def split_mesh_spec(spec: str):
 
 
 def load_mesh(spec: str, scale=None, *, name: str | None = None):
-    """A MeshObject from a file path or a bundled name, times ``scale`` (None: 1)."""
+    """A MeshObject from a file path or a bundled name, times ``scale`` (None: 1).
+
+    ``spec`` may carry its own scale as ``path.obj:0.001``, which wins over ``scale``.
+    """
     from .data import MESHES, load_object
     from .models import MeshObject
 
-    s = parse_scale(scale)
+    spec, own = split_mesh_spec(spec)
+    s = parse_scale(scale) if own is None else own
     if spec in MESHES and not Path(spec).exists():
         obj = load_object(spec)
         if s is not None and s != 1.0:
