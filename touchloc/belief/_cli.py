@@ -193,33 +193,49 @@ def run_identify(args) -> int:
 
 
 def plot_belief(obj, belief, contacts, path, *, max_particles: int = 300):
-    """Figure: the mesh at the MAP pose, the contacts with normals, the heaviest particles."""
+    """Figure: the mesh at the MAP pose, the contacts with normals, the heaviest particles.
+
+    Left: 3-D view in millimetres (mesh translucent, contacts red with their normals,
+    the object origins of the heaviest particles in blue, darker for more weight).
+    Right: the Scaling Series schedule, or the cumulative weight of the particles by rank.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     from ..geometry import transform_points
 
     T = belief.map_pose()
-    V = transform_points(T, obj.mesh.vertices)
-    fig = plt.figure(figsize=(11, 5))
+    V = transform_points(T, obj.mesh.vertices) * 1e3
+    fig = plt.figure(figsize=(12, 5.2))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
-    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=obj.mesh.faces, color="0.8", alpha=0.35, linewidth=0)
-    P = contacts.points
-    ax.scatter(P[:, 0], P[:, 1], P[:, 2], color="crimson", s=12, label="contacts")
+    ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=obj.mesh.faces, color="0.75", alpha=0.18, linewidth=0)
+    P = contacts.points * 1e3
+    ax.scatter(P[:, 0], P[:, 1], P[:, 2], color="crimson", s=14, depthshade=False, label="contacts")
     if contacts.has_normals:
-        L = 0.1 * float(obj.extents.max())
+        L = 0.1 * float(np.ptp(V, axis=0).max())
         N = contacts.normals
         ax.quiver(P[:, 0], P[:, 1], P[:, 2], N[:, 0], N[:, 1], N[:, 2], length=L, color="crimson", lw=0.8)
     order = np.argsort(-belief.log_weights)[:max_particles]
-    C = belief.poses[order, :3, 3]
-    ax.scatter(C[:, 0], C[:, 1], C[:, 2], c=belief.weights[order], cmap="viridis", s=6, label="particles (origin)")
-    ax.set_xlabel("x (m)"), ax.set_ylabel("y (m)"), ax.set_zlabel("z (m)")
-    ax.set_title(f"{obj.name} at the MAP pose")
+    C = belief.poses[order, :3, 3] * 1e3
+    w = belief.weights[order]
+    alpha = 0.25 + 0.75 * w / max(float(w.max()), 1e-300)
+    colors = np.zeros((len(order), 4))
+    colors[:] = matplotlib.colors.to_rgba("navy")
+    colors[:, 3] = alpha
+    ax.scatter(C[:, 0], C[:, 1], C[:, 2], c=colors, s=18, marker="o", depthshade=False,
+               label=f"object origin of the {len(order)} heaviest particles")
+    ax.scatter(*T[:3, 3] * 1e3, color="orange", edgecolor="k", s=80, marker="*", depthshade=False, label="MAP origin")
+    ax.set_xlabel("x (mm)", labelpad=8), ax.set_ylabel("y (mm)", labelpad=8), ax.set_zlabel("z (mm)", labelpad=8)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(4))
+    ax.set_title(f"{obj.name} at the MAP pose" + (" (DEGENERATE)" if belief.degenerate else ""))
     ax.legend(loc="upper left", fontsize=8)
-    lo, hi = V.min(0), V.max(0)
-    mid, r = (lo + hi) / 2, (hi - lo).max() * 0.7
+    allp = np.vstack([V, P, C])
+    lo, hi = allp.min(0), allp.max(0)
+    mid, r = (lo + hi) / 2, (hi - lo).max() * 0.55
     ax.set_xlim(mid[0] - r, mid[0] + r), ax.set_ylim(mid[1] - r, mid[1] + r), ax.set_zlim(mid[2] - r, mid[2] + r)
     ax2 = fig.add_subplot(1, 2, 2)
     steps = belief.info.get("scales")
@@ -232,11 +248,18 @@ def plot_belief(obj, belief, contacts, path, *, max_particles: int = 300):
         ax2.set_ylabel("particles per scale")
         ax2.set_title("Scaling Series")
     else:
-        w = np.sort(belief.weights)[::-1]
-        ax2.semilogy(np.arange(1, len(w) + 1), w)
-        ax2.set_xlabel("particle rank")
-        ax2.set_ylabel("weight")
-        ax2.set_title(f"weights (ESS {belief.ess():.0f})")
+        cw = np.cumsum(np.sort(belief.weights)[::-1])
+        rank = np.arange(1, len(cw) + 1)
+        ax2.semilogx(rank, cw)
+        for level in (0.5, 0.9):
+            k = int(np.searchsorted(cw, level)) + 1
+            ax2.axhline(level, color="0.7", lw=0.8, ls="--")
+            ax2.annotate(f"{level:.0%} of the weight in {k} particles", (k, level), xytext=(6, -14),
+                         textcoords="offset points", fontsize=8)
+        ax2.set_ylim(0, 1.02)
+        ax2.set_xlabel("particles, heaviest first (log scale)")
+        ax2.set_ylabel("cumulative weight")
+        ax2.set_title(f"weights of {len(cw)} particles (ESS {belief.ess():.0f})")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
