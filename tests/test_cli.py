@@ -139,8 +139,9 @@ def test_save_load_json_round_trip(mug_csv, tmp_path):
     assert np.allclose(contacts.points, c0.points) and np.allclose(contacts.normals, c0.normals)
     assert isinstance(belief.region, PoseRegion) and belief.region.dim == 3
     assert belief.info["model"]["sigma_pos"] == 0.002 and belief.info["method"] == "hf"
-    r2 = touchloc("localize", "--mesh", "mug", "--load", path, "--json")
+    r2 = touchloc("localize", "--mesh", "mug", "--load", path, "--json", "--plot", tmp_path / "b.png")
     assert r2.returncode == 0, r2.stderr
+    assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
     assert np.allclose(json.loads(r2.stdout)["map_pose"]["matrix"], M)
 
 

@@ -211,6 +211,7 @@ def plot_belief(obj, belief, contacts, path, *, max_particles: int = 300):
     V = transform_points(T, obj.mesh.vertices) * 1e3
     fig = plt.figure(figsize=(12, 5.2))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
+    ax.computed_zorder = False  # draw in call order: mesh, contacts, particles, MAP on top
     ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=obj.mesh.faces, color="0.75", alpha=0.18, linewidth=0)
     P = contacts.points * 1e3
     ax.scatter(P[:, 0], P[:, 1], P[:, 2], color="crimson", s=14, depthshade=False, label="contacts")
@@ -227,7 +228,7 @@ def plot_belief(obj, belief, contacts, path, *, max_particles: int = 300):
     colors[:, 3] = alpha
     ax.scatter(C[:, 0], C[:, 1], C[:, 2], c=colors, s=18, marker="o", depthshade=False,
                label=f"object origin of the {len(order)} heaviest particles")
-    ax.scatter(*T[:3, 3] * 1e3, color="orange", edgecolor="k", s=80, marker="*", depthshade=False, label="MAP origin")
+    ax.scatter(*T[:3, 3] * 1e3, color="orange", edgecolor="k", s=160, marker="*", depthshade=False, label="MAP origin")
     ax.set_xlabel("x (mm)", labelpad=8), ax.set_ylabel("y (mm)", labelpad=8), ax.set_zlabel("z (mm)", labelpad=8)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.set_major_locator(MaxNLocator(4))
@@ -242,9 +243,9 @@ def plot_belief(obj, belief, contacts, path, *, max_particles: int = 300):
     if steps:
         d = [s[0] * 1e3 for s in steps]
         n = [s[2] for s in steps]
-        ax2.semilogy(d, n, "o-", ms=3)
+        ax2.loglog(d, n, "o-", ms=3)
         ax2.invert_xaxis()
-        ax2.set_xlabel("delta (mm)")
+        ax2.set_xlabel("delta (mm, log scale; coarse to fine)")
         ax2.set_ylabel("particles per scale")
         ax2.set_title("Scaling Series")
     else:
