@@ -220,3 +220,16 @@ def test_active_takes_a_mesh_file_with_scale_and_prints_the_full_pose(ycb_like, 
     assert r.returncode == 0, r.stderr
     assert "extents=[0.0" in r.stdout  # scaled to metres
     assert "roll/pitch/yaw" in r.stdout and "quat_xyzw" in r.stdout
+
+
+def test_heartbeat_reports_long_silent_work(capsys):
+    err = []
+    with cli.heartbeat("work", interval=0.05):
+        deadline = time.monotonic() + 30
+        while not err and time.monotonic() < deadline:  # wait for the first line, however loaded the machine
+            time.sleep(0.05)
+            err += capsys.readouterr().err.splitlines()
+    err += capsys.readouterr().err.splitlines()  # lines written before the exit
+    assert err and all(line.startswith("work: still working (") for line in err)
+    time.sleep(0.2)
+    assert capsys.readouterr().err == ""  # stopped on exit

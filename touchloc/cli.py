@@ -201,3 +201,34 @@ def diagnose(obj, contacts, region, belief=None, *, sigma_pos: float | None = No
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+class heartbeat:
+    """Context manager: print ``label: still working (N s)`` to stderr every ``interval`` s.
+
+    For long calls that report no progress of their own; a daemon thread, stopped on exit
+    (also on Ctrl-C).
+    """
+
+    def __init__(self, label: str, interval: float = 10.0):
+        import threading
+
+        self.label, self.interval = label, float(interval)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        import time
+
+        t0 = time.monotonic()
+        while not self._stop.wait(self.interval):
+            print(f"{self.label}: still working ({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        return False

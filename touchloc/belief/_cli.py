@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cli import add_mesh_argument, diagnose, load_mesh, split_mesh_spec
+from ..cli import add_mesh_argument, diagnose, heartbeat, load_mesh, split_mesh_spec
 
 ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "ss+mcmc")
 
@@ -105,9 +105,13 @@ def run_localize(args) -> int:
         }[args.method]()
         print(f"{obj}\n{len(contacts)} contacts, {region}, method {args.method}", file=out, flush=True)
         t0 = time.perf_counter()
-        belief = est.localize(contacts, region)
-        if args.method == "ss+mcmc":
-            belief = MCMC(model, rng=args.seed).refine(contacts, belief)
+        if args.method == "ss":
+            belief = est.localize(contacts, region)  # Scaling Series reports its own progress
+        else:
+            with heartbeat(f"localize ({args.method})"):
+                belief = est.localize(contacts, region)
+                if args.method == "ss+mcmc":
+                    belief = MCMC(model, rng=args.seed).refine(contacts, belief)
         dt = time.perf_counter() - t0
     T = belief.map_pose()
     if args.json:
