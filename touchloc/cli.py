@@ -177,8 +177,9 @@ def diagnose(obj, contacts, region, belief=None, *, sigma_pos: float | None = No
     ext_m = float(np.max(obj.extents))
     if belief is not None and "mean_cost_at_map" in belief.info:
         k = float(np.sqrt(max(belief.info["mean_cost_at_map"], 0.0)))
-        d = f" ({k * sigma_pos * 1e3:.3g} mm)" if sigma_pos else ""
-        lines.append(f"at the best pose the contacts lie {k:.3g} sigma{d} from the surface on average")
+        d = f" (x sigma_pos = {k * sigma_pos * 1e3:.3g} mm)" if sigma_pos else ""
+        lines.append(f"at the best pose the contacts lie {k:.3g} sigma{d} from the surface on average, "
+                     "position and normal error together")
         if k > 1e4:
             lines.append("that many sigma suggests a unit mismatch: a mesh or CSV in millimetres read as metres "
                          "(try --scale 0.001 for the mesh, or convert the CSV to metres)")

@@ -13,6 +13,10 @@ from ..cli import add_mesh_argument, diagnose, heartbeat, load_mesh, split_mesh_
 
 ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "ss+mcmc")
 
+#: mean squared Mahalanobis distance per contact at the MAP pose above which the command
+#: warns of low evidence (9: contacts 3 sigma off on average; above 36 the belief is degenerate)
+LOW_EVIDENCE_COST = 9.0
+
 
 def _region(args):
     from .region import PoseRegion
@@ -130,9 +134,14 @@ def run_localize(args) -> int:
         print(belief.summary())
         if dt is not None:
             print(f"time: {dt:.2f} s")
+    cost = belief.info.get("mean_cost_at_map")
     if belief.degenerate:
         print("touchloc localize: the result is degenerate (no pose in the region explains the contacts):",
               file=sys.stderr)
+    elif cost is not None and cost > LOW_EVIDENCE_COST:
+        print("touchloc localize: low evidence: the best pose explains the contacts poorly; treat it with care:",
+              file=sys.stderr)
+    if belief.degenerate or (cost is not None and cost > LOW_EVIDENCE_COST):
         for line in diagnose(obj, contacts, region, belief, sigma_pos=args.sigma_pos):
             print(f"  - {line}", file=sys.stderr)
     if args.save and not args.load:
