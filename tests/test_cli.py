@@ -233,3 +233,18 @@ def test_heartbeat_reports_long_silent_work(capsys):
     assert err and all(line.startswith("work: still working (") for line in err)
     time.sleep(0.2)
     assert capsys.readouterr().err == ""  # stopped on exit
+
+
+def test_diagnose_names_units_region_and_mesh(objects, mug_csv):
+    from touchloc.belief import ParticleBelief
+
+    m, mm, _ = mug_csv
+    obj = objects["mug"]
+    region = PoseRegion.planar((0, 0), 0.01)
+    b = ParticleBelief(np.eye(4)[None], info={"mean_cost_at_map": 4e9})
+    lines = cli.diagnose(obj, Contacts.from_csv(mm), region, b, sigma_pos=0.002)
+    text = "\n".join(lines)
+    assert "unit mismatch" in text and "contacts in millimetres" in text and "--center" in text
+    b = ParticleBelief(np.eye(4)[None], info={"mean_cost_at_map": 16.0})
+    text = "\n".join(cli.diagnose(obj, Contacts.from_csv(m), region, b, sigma_pos=0.002))
+    assert "4 sigma" in text and "millimetres" not in text and "check: units" in text
