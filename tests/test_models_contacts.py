@@ -79,3 +79,94 @@ def test_indexing_and_csv_round_trip(tmp_path, rng):
     assert np.allclose(d.points, c.points, atol=1e-8) and np.allclose(d.normals, c.normals, atol=1e-8)
     Contacts(c.points).to_csv(path)
     assert not Contacts.from_csv(path).has_normals
+
+
+# -- CSV reading -----------------------------------------------------------------------
+ROWS6 = [[0.1, 0.2, 0.3, 0.0, 0.0, 1.0], [0.4, -0.5, 0.6, 1.0, 0.0, 0.0]]
+
+
+@pytest.mark.parametrize("sep", [",", ";", "\t", " ", "   ", " , "])
+def test_csv_separators_are_sniffed(tmp_path, sep):
+    path = tmp_path / "c.csv"
+    path.write_text("\n".join(sep.join(str(v) for v in r) for r in ROWS6) + "\n")
+    c = Contacts.from_csv(path)
+    assert np.allclose(c.points, np.array(ROWS6)[:, :3]) and np.allclose(c.normals, np.array(ROWS6)[:, 3:])
+
+
+def test_csv_header_names_choose_columns_in_any_order(tmp_path):
+    path = tmp_path / "c.csv"
+    order = ["nz", "X", "ny", "z", "nx", "y"]
+    idx = {n: i for i, n in enumerate(["x", "y", "z", "nx", "ny", "nz"])}
+    lines = [";".join(order)] + [";".join(str(r[idx[n.lower()]]) for n in order) for r in ROWS6]
+    path.write_text("\n".join(lines) + "\n")
+    c = Contacts.from_csv(path)
+    assert np.allclose(c.points, np.array(ROWS6)[:, :3]) and np.allclose(c.normals, np.array(ROWS6)[:, 3:])
+
+
+def test_csv_positions_only_comments_and_bom(tmp_path):
+    path = tmp_path / "c.csv"
+    path.write_bytes("\ufeff# measured today\nz,y,x\n\n3,2,1\n6,5,4\n".encode("utf-8"))
+    c = Contacts.from_csv(path)
+    assert not c.has_normals and np.allclose(c.points, [[1, 2, 3], [4, 5, 6]])
+
+
+MALFORMED = {
+    "empty": (b"", r"empty"),
+    "blank_lines": (b"\n\n  \n", r"empty"),
+    "comments_only": (b"# nothing\n", r"empty"),
+    "header_only": (b"x,y,z,nx,ny,nz\n", r"empty"),
+    "header_only_xyz": (b"x;y;z\n", r"empty"),
+    "ragged_short": (b"1,2,3\n4,5\n", r"line 2: 2 columns, expected 3"),
+    "ragged_long": (b"1,2,3,0,0,1\n4,5,6,0,0,1,7\n", r"line 2: 7 columns"),
+    "ragged_after_header": (b"x,y,z\n1,2,3\n\n4,5,6,7\n", r"line 4"),
+    "text_cell": (b"1,2,3\n4,five,6\n", r"line 2, column 2: 'five' is not a number"),
+    "empty_cell": (b"1,2,3\n4,,6\n", r"line 2, column 2"),
+    "nan_cell": (b"1,2,3\n4,nan,6\n", r"line 2, column 2: 'nan' is not finite"),
+    "inf_cell": (b"1,2,inf\n", r"line 1, column 3: 'inf' is not finite"),
+    "one_column": (b"1\n2\n", r"line 1: expected 3 or 6 columns"),
+    "two_columns": (b"1 2\n3 4\n", r"line 1: expected 3 or 6 columns .*got 2"),
+    "four_columns": (b"1;2;3;4\n", r"line 1: expected 3 or 6 columns .*got 4"),
+    "unknown_header": (b"x,y,w\n1,2,3\n", r"line 1: unknown column name"),
+    "duplicate_header": (b"x,y,x\n1,2,3\n", r"twice"),
+    "header_missing_z": (b"x,y,nx,ny,nz,nz2\n1,2,3,4,5,6\n", r"unknown column"),
+    "header_incomplete_normals": (b"x,y,z,nx\n1,2,3,4\n", r"must name x,y,z"),
+    "zero_normal": (b"1,2,3,0,0,1\n1,2,3,0,0,0\n", r"line 2: the normal is zero"),
+    "latin1": ("x,y,z\n1,2,3\n# caf\u00e9\n".encode("latin-1"), r"not a UTF-8"),
+    "binary": (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", r"not a UTF-8|NUL"),
+    "nul_bytes": (b"1,2,3\x00\n", r"NUL"),
+    "mixed_separators": (b"1,2,3\n4;5;6\n", r"line 2"),
+    "header_wrong_count": (b"x,y,z\n1,2,3,0,0,1\n", r"line 2: 6 columns, expected 3"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MALFORMED))
+def test_csv_malformed_files_raise_validation_errors_naming_the_problem(tmp_path, name):
+    content, match = MALFORMED[name]
+    path = tmp_path / f"{name}.csv"
+    path.write_bytes(content)
+    with pytest.raises(ValidationError, match=match) as info:
+        Contacts.from_csv(path)
+    assert str(path) in str(info.value)
+
+
+def test_csv_missing_file_and_directory(tmp_path):
+    with pytest.raises(ValidationError, match="no such contacts file"):
+        Contacts.from_csv(tmp_path / "nope.csv")
+    with pytest.raises(ValidationError, match="is a directory"):
+        Contacts.from_csv(tmp_path)
+
+
+@pytest.mark.parametrize("bad", [True, False, 0, 3, 1.5, None, b"c.csv", ["c.csv"]])
+def test_csv_non_path_arguments_never_read_a_file_descriptor(bad):
+    # open(0) would read stdin and open(3) some descriptor: a bool or int is not a path
+    with pytest.raises(ValidationError, match="needs a file path"):
+        Contacts.from_csv(bad)
+
+
+def test_csv_round_trip_keeps_order_after_header_reorder(tmp_path, rng):
+    c = Contacts(rng.normal(size=(5, 3)), rng.normal(size=(5, 3)))
+    path = tmp_path / "c.csv"
+    c.to_csv(path)
+    assert Contacts.from_csv(str(path)) == Contacts.from_csv(path)
+    d = Contacts.from_csv(path)
+    assert np.allclose(d.points, c.points, atol=1e-8) and np.allclose(d.normals, c.normals, atol=1e-8)

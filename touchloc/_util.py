@@ -54,12 +54,32 @@ def as_poses(x, name: str = "poses") -> np.ndarray:
     return a
 
 
-def progress(iterable: Iterable, *, total=None, desc=None, enabled=None, leave=False):
-    """Wrap ``iterable`` in a tqdm bar when ``enabled`` (default: stderr is a TTY)."""
-    if enabled is None:
-        enabled = sys.stderr.isatty()
+def progress(iterable: Iterable, *, total=None, desc=None, enabled=None, leave=False, interval: float = 5.0):
+    """Wrap ``iterable`` in a tqdm bar when ``enabled`` (default: stderr is a TTY).
+
+    With ``enabled=None`` and stderr not a TTY (a log file, a job scheduler), a plain
+    line ``desc: i/total (elapsed)`` goes to stderr at most every ``interval`` seconds
+    instead; ``enabled=False`` prints nothing.
+    """
+    if enabled is None and not sys.stderr.isatty():
+        return _log_progress(iterable, total, desc, interval)
     if not enabled:
         return iterable
     from tqdm.auto import tqdm
 
     return tqdm(iterable, total=total, desc=desc, leave=leave)
+
+
+def _log_progress(iterable, total, desc, interval):
+    import time
+
+    if total is None and hasattr(iterable, "__len__"):
+        total = len(iterable)
+    t0 = last = time.monotonic()
+    for i, item in enumerate(iterable):
+        now = time.monotonic()
+        if now - last >= interval:
+            last = now
+            print(f"{desc or 'progress'}: {i}{'' if total is None else f'/{total}'} ({now - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+        yield item

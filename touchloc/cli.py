@@ -1,17 +1,20 @@
 """The ``touchloc`` command.
 
 Each subpackage that offers commands has a ``_cli.py`` module with a
-``register(subparsers)`` function; this module only collects them.
+``register(subparsers)`` function; this module only collects them and holds the few
+helpers every command shares (warnings, mesh arguments, interruption, diagnosis).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 import warnings
+from pathlib import Path
 
-from .errors import TouchlocError
+from .errors import TouchlocError, ValidationError
 
 #: modules whose register(subparsers) adds subcommands, in help order
 COMMAND_MODULES = [
@@ -25,10 +28,25 @@ COMMAND_MODULES = [
     "touchloc.experiments._cli",
 ]
 
+#: exit status after Ctrl-C (128 + SIGINT), as shells report it
+EXIT_INTERRUPTED = 128 + signal.SIGINT
+
+
+def _add_verbosity(p, *, top: bool):
+    # On a subcommand the defaults are SUPPRESS, so `touchloc -v localize` and
+    # `touchloc localize -v` both work and neither overwrites the other.
+    kw = {} if top else {"default": argparse.SUPPRESS}
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-q", "--quiet", action="store_true", help="print no warnings", **({"default": False} if top else kw))
+    g.add_argument("-v", "--verbose", action="count",
+                   help="print more: the category and origin of each warning, tracebacks of errors",
+                   **({"default": 0} if top else kw))
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="touchloc", description="Bayesian tactile localisation and mapping.")
     parser.add_argument("--version", action="store_true", help="print the version and exit")
+    _add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         try:
@@ -38,7 +56,20 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # that subpackage offers no commands (yet)
             raise
         mod.register(sub)
+    for p in sub.choices.values():
+        _add_verbosity(p, top=False)
     return parser
+
+
+def _show_warning(verbose: int):
+    def show(message, category, filename, lineno, file=None, line=None):
+        if verbose:
+            text = f"touchloc: {category.__name__}: {message} ({filename}:{lineno})"
+        else:
+            text = f"touchloc: warning: {message}"
+        print(text, file=sys.stderr if file is None else file, flush=True)
+
+    return show
 
 
 def main(argv=None) -> int:
@@ -54,13 +85,151 @@ def main(argv=None) -> int:
         return 2
     try:
         with warnings.catch_warnings():
-            if not getattr(args, "verbose", False):
-                warnings.simplefilter("ignore", category=UserWarning)
+            if args.quiet:
+                warnings.simplefilter("ignore")
+            else:
+                warnings.simplefilter("always" if args.verbose else "default")
+                warnings.showwarning = _show_warning(args.verbose)
             return int(args.func(args) or 0)
     except TouchlocError as exc:
+        if args.verbose > 1:
+            raise
         print(f"touchloc {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"touchloc {args.command}: interrupted", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+
+
+# -- helpers shared by the subcommands -----------------------------------------------
+
+def add_mesh_argument(p, *, name: str = "--mesh", default=None, required: bool = False, help_extra: str = ""):
+    """``--mesh`` (a mesh file or a bundled name) and ``--scale`` (factor to metres)."""
+    from .data import MESHES
+
+    p.add_argument(name, default=default, required=required,
+                   help=f"mesh file (any format trimesh reads: .obj, .stl, .ply, ...) or a bundled name "
+                        f"({', '.join(sorted(MESHES))}){help_extra}")
+    p.add_argument("--scale", default=None,
+                   help="factor from the file's units to metres, e.g. 0.001 for a file in millimetres; "
+                        "applies to bundled meshes too (on top of their own scaling)")
+
+
+def parse_scale(value) -> float | None:
+    if value is None:
+        return None
+    try:
+        s = float(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"--scale must be a positive number (e.g. 0.001 for millimetres), got {value!r}") from None
+    if not (s > 0 and s < float("inf")):
+        raise ValidationError(f"--scale must be a positive finite number, got {value!r}")
+    return s
+
+
+def split_mesh_spec(spec: str):
+    """``path.obj:0.001`` -> ("path.obj", 0.001); a plain name or path -> (spec, None)."""
+    head, sep, tail = spec.rpartition(":")
+    if sep and head and not Path(spec).exists():
+        try:
+            return head, parse_scale(tail)
+        except ValidationError:
+            pass  # e.g. a Windows drive letter: not a scale
+    return spec, None
+
+
+def load_mesh(spec: str, scale=None, *, name: str | None = None):
+    """A MeshObject from a file path or a bundled name, times ``scale`` (None: 1).
+
+    ``spec`` may carry its own scale as ``path.obj:0.001``, which wins over ``scale``.
+    """
+    from .data import MESHES, load_object
+    from .models import MeshObject
+
+    spec, own = split_mesh_spec(spec)
+    s = parse_scale(scale) if own is None else own
+    if spec in MESHES and not Path(spec).exists():
+        obj = load_object(spec)
+        if s is not None and s != 1.0:
+            obj = MeshObject.from_file(_bundled_path(spec), scale=MESHES[spec] * s, name=name or spec)
+        return obj
+    p = Path(spec)
+    if not p.exists():
+        raise ValidationError(f"mesh {spec!r}: no such file, and not a bundled name ({', '.join(sorted(MESHES))})")
+    if p.is_dir():
+        raise ValidationError(f"mesh {spec!r} is a directory, expected a mesh file")
+    return MeshObject.from_file(p, scale=1.0 if s is None else s, **({"name": name} if name else {}))
+
+
+def _bundled_path(name):
+    from .data import mesh_path
+
+    return mesh_path(name)
+
+
+def diagnose(obj, contacts, region, belief=None, *, sigma_pos: float | None = None) -> list[str]:
+    """Reasons a localisation may have failed, and what to check (units, region, mesh)."""
+    import numpy as np
+
+    lines = []
+    P = contacts.points
+    ext_c = float(np.ptp(P, axis=0).max()) if len(P) > 1 else 0.0
+    ext_m = float(np.max(obj.extents))
+    if belief is not None and "mean_cost_at_map" in belief.info:
+        k = float(np.sqrt(max(belief.info["mean_cost_at_map"], 0.0)))
+        d = f" (x sigma_pos = {k * sigma_pos * 1e3:.3g} mm)" if sigma_pos else ""
+        lines.append(f"at the best pose the contacts lie {k:.3g} sigma{d} from the surface on average, "
+                     "position and normal error together")
+        if k > 1e4:
+            lines.append("that many sigma suggests a unit mismatch: a mesh or CSV in millimetres read as metres "
+                         "(try --scale 0.001 for the mesh, or convert the CSV to metres)")
+    if ext_m > 0 and ext_c > 100 * ext_m:
+        lines.append(f"the contacts span {ext_c:.3g} m but the mesh only {ext_m:.3g} m: are the contacts in "
+                     "millimetres? (the CSV must be in metres)")
+    elif ext_c > 0 and ext_m > 100 * ext_c and len(P) >= 4:
+        lines.append(f"the mesh spans {ext_m:.3g} m but the contacts only {ext_c:.3g} m: is the mesh in "
+                     "millimetres? (try --scale 0.001)")
+    c = np.asarray(getattr(region, "center", np.zeros(3)), dtype=float)[:3]
+    far = float(np.max(np.linalg.norm(P - c, axis=1)))
+    reach = float(np.linalg.norm(getattr(region, "half_extent", 0.0))) + float(obj.radius)
+    if far > reach:
+        lines.append(f"a contact lies {far:.3g} m from the region centre, beyond reach of the object anywhere in the "
+                     f"region ({reach:.3g} m): check --center and --half-extent")
+    lines.append("check: units (metres everywhere; --scale for the mesh), the region (--center, --half-extent, "
+                 "--rotation), and that the mesh is the touched object")
+    return lines
 
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+class heartbeat:
+    """Context manager: print ``label: still working (N s)`` to stderr every ``interval`` s.
+
+    For long calls that report no progress of their own; a daemon thread, stopped on exit
+    (also on Ctrl-C).
+    """
+
+    def __init__(self, label: str, interval: float = 10.0):
+        import threading
+
+        self.label, self.interval = label, float(interval)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self):
+        import time
+
+        t0 = time.monotonic()
+        while not self._stop.wait(self.interval):
+            print(f"{self.label}: still working ({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        return False

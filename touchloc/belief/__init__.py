@@ -11,6 +11,7 @@ from ._common import DegenerateBeliefWarning
 from .annealed import AnnealedParticleFilter, ManifoldParticleFilter
 from .histogram import HistogramFilter
 from .identify import identify, log_evidence
+from .io import load_belief, pose_to_dict, save_belief
 from .mcmc import MCMC
 from .metrics import add, add_s, belief_coverage, credible_level, pose_errors, symmetric_pose_error
 from .particle_filter import ParticleFilter
@@ -24,4 +25,5 @@ __all__ = [
     "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
     "ManifoldParticleFilter", "SMCFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
     "symmetric_pose_error", "credible_level", "belief_coverage",
+    "save_belief", "load_belief", "pose_to_dict",
 ]

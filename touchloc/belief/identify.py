@@ -69,6 +69,15 @@ def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | 
     -------
     dict name -> posterior probability (and a dict of beliefs when requested)
 
+    Raises
+    ------
+    BeliefDegenerateError
+        When no candidate explains the contacts: every candidate's belief is degenerate
+        (its best pose leaves the contacts many sigma from the surface, see
+        ``DEGENERATE_COST``) or has zero likelihood everywhere. Normalising such
+        evidences would name one of them with probability near 1, a confident answer
+        that means nothing, so none is returned.
+
     Examples
     --------
     >>> identify({"can": m_can, "milk": m_milk}, contacts, region, rng=0)  # doctest: +SKIP
@@ -98,7 +107,19 @@ def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | 
         beliefs[name] = b
     log_post = np.array(log_post)
     if not np.any(np.isfinite(log_post)):
-        raise BeliefDegenerateError("no candidate object explains the contacts")
+        raise BeliefDegenerateError("no candidate object explains the contacts: every likelihood underflowed")
+    if all(b is None or b.degenerate for b in beliefs.values()):
+        why = ", ".join(f"{n}: {_sigmas(b)}" for n, b in beliefs.items())
+        raise BeliefDegenerateError(
+            "no candidate object explains the contacts: at each candidate's best pose the contacts lie far "
+            f"from its surface ({why}); check units (metres), the region and the candidate meshes")
     post = np.exp(log_post - logsumexp(log_post))
     out = {n: float(p) for n, p in zip(names, post)}
     return (out, beliefs) if return_beliefs else out
+
+
+def _sigmas(belief) -> str:
+    if belief is None:
+        return "zero likelihood"
+    cost = belief.info.get("mean_cost_at_map")
+    return "degenerate" if cost is None else f"{np.sqrt(max(cost, 0.0)):.3g} sigma"

@@ -9,7 +9,8 @@ import numpy as np
 
 def register(sub) -> None:
     p = sub.add_parser("compare-dnf", help="DNF tracker vs histogram, uncorrected memory and particle filter",
-                       description="Run the shape estimators of seed 000 (accumulated histogram, memory trace "
+                       description="Run the shape estimators of the DNF paper (\"Using Haptics to Extract Object Shape from "
+                                   "Rotational Manipulations\": accumulated histogram, memory trace "
                                    "without correction, full DNF model) and a Rao-Blackwellised particle filter "
                                    "on the same rotation data sets; print the side counts and orientation errors "
                                    "and save the plots.")
@@ -29,9 +30,10 @@ def register(sub) -> None:
     p.add_argument("--no-plots", action="store_true", help="print the tables only")
     p.set_defaults(func=run_compare)
 
-    f = sub.add_parser("dnf-figure", help="seed 000 Fig. 5: histogram, uncorrected and corrected memory over time",
+    f = sub.add_parser("dnf-figure", help="Fig. 5 of the DNF paper: histogram, uncorrected and corrected memory over time",
                        description="Plot the accumulated histogram, the uncorrected memory trace and the corrected "
-                                   "memory trace of one data set over time, as in seed 000, Fig. 5.")
+                                   "memory trace of one data set over time, as in Fig. 5 of \"Using Haptics to Extract Object "
+                                   "Shape from Rotational Manipulations\".")
     f.add_argument("--object", default="6-gon", help="simulated object (4-gon, 5-gon, 6-gon, 8-gon, round)")
     f.add_argument("--dataset", type=int, default=5, help="which simulated data set, 1-based (default 5)")
     f.add_argument("--seed", type=int, default=0)
@@ -80,7 +82,7 @@ def run_compare(args) -> int:
         plot_step_time(results, out / "dnf_step_time.png")
         if any(r.error is not None for by in results.values() for runs in by.values() for r in runs):
             plot_orientation_error(results, out / "dnf_orientation_error.png")
-        print(f"\nplots in {out}/: dnf_surfaces.png (seed Fig. 6), dnf_second_half.png (Fig. 7), "
+        print(f"\nplots in {out}/: dnf_surfaces.png (the DNF paper's Fig. 6), dnf_second_half.png (Fig. 7), "
               "dnf_orientation_error.png, dnf_step_time.png")
     return 0
 

@@ -230,6 +230,7 @@ def plot_surface_counts(results: dict, path) -> None:
         ax.set_title(f"{obj}")
         ax.set_xlabel("sample (about 4 turns in total)")
         ax.set_ylabel("number of sides")
+        ax.yaxis.get_major_locator().set_params(integer=True)
         ax.set_ylim(bottom=-0.5)
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
@@ -258,6 +259,7 @@ def plot_second_half(results: dict, path) -> None:
         ax.set_xticks(np.arange(n_ds), [str(i + 1) for i in range(n_ds)])
         ax.set_xlabel("data set")
         ax.set_ylabel("number of sides, 2nd half")
+        ax.yaxis.get_major_locator().set_params(integer=True)
         ax.set_title(obj)
     axes[0][0].legend(fontsize=8)
     fig.tight_layout()
@@ -273,7 +275,7 @@ def plot_orientation_error(results: dict, path) -> None:
     """
     plt = _plt()
     objs = list(results)
-    fig, axes = plt.subplots(1, len(objs), figsize=(5 * len(objs), 3.4), squeeze=False)
+    fig, axes = plt.subplots(1, len(objs), figsize=(max(5 * len(objs), 8), 3.8), squeeze=False)
     for ax, obj in zip(axes[0], objs):
         for name, runs in results[obj].items():
             for i, r in enumerate(runs):
@@ -282,12 +284,16 @@ def plot_orientation_error(results: dict, path) -> None:
                 e = np.degrees(r.error)
                 period = 360.0 / r.n_true if r.n_true else 360.0
                 e[1:][np.abs(np.diff(e)) > period / 2] = np.nan      # break the line where it wraps
-                ax.plot(e, color=ESTIMATOR_COLORS.get(name), lw=0.8, alpha=0.7, label=name if i == 0 else None)
+                # the histogram's curve is the uncorrected memory's: draw it wide and dashed beneath
+                same = name == "histogram"
+                ax.plot(e, color=ESTIMATOR_COLORS.get(name), lw=3.0 if same else 0.8, ls="--" if same else "-",
+                        alpha=0.7, zorder=1 if same else 2,
+                        label=(f"{name} (same as uncorrected)" if same else name) if i == 0 else None)
         ax.set_title(obj)
         ax.set_xlabel("sample")
         ax.set_ylabel("orientation error (deg)")
-    axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
+    fig.legend(*axes[0][0].get_legend_handles_labels(), fontsize=8, loc="lower center", ncol=4, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

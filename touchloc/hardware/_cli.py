@@ -22,7 +22,9 @@ def register(sub):
     p.add_argument("--can-interface", default="socketcan",
                    help="python-can interface for --hand can (default socketcan; 'virtual' is in-process only)")
     p.add_argument("--can-channel", default="vcan0", help="CAN channel for --hand can (default vcan0)")
-    p.add_argument("--mesh", help="bundled mesh to place under the hand (e.g. cereal)")
+    from ..cli import add_mesh_argument
+
+    add_mesh_argument(p, help_extra=" to place under the hand (e.g. cereal)")
     p.add_argument("--pose", default="0,0,0", help="hidden object pose x,y,yaw (m, m, deg) in the world")
     p.add_argument("--hand-height", type=float, default=0.18, help="hand base above the world origin, fingers down (m)")
     p.add_argument("--time-scale", type=float, default=1.0, help="emulated seconds per wall-clock second")
@@ -45,7 +47,7 @@ def register(sub):
 def _world(args):
     if not args.mesh:
         return None
-    from ..data import load_object
+    from ..cli import load_mesh
     from .emulator import SimWorld
 
     x, y, yaw = (float(v) for v in args.pose.split(","))
@@ -55,7 +57,7 @@ def _world(args):
     T[:2, 3] = x, y
     H = np.diag([1.0, -1.0, -1.0, 1.0])
     H[2, 3] = args.hand_height
-    return SimWorld(load_object(args.mesh), T, H)
+    return SimWorld(load_mesh(args.mesh, args.scale), T, H)
 
 
 def _open_bus(interface, channel, bitrate=None):

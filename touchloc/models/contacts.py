@@ -147,21 +147,116 @@ class Contacts:
 
     @classmethod
     def from_csv(cls, path) -> "Contacts":
-        """Read a CSV of 3 (positions) or 6 (positions and normals) columns; a header is optional."""
-        with open(path, "r", encoding="utf-8") as fh:
-            first = fh.readline()
-        skip = 0 if _is_numeric_row(first) else 1
-        data = np.loadtxt(path, delimiter=",", skiprows=skip, ndmin=2)
-        if data.shape[1] == 3:
-            return cls(data)
-        if data.shape[1] == 6:
-            return cls(data[:, :3], data[:, 3:])
-        raise ValidationError(f"{path}: expected 3 or 6 columns (x,y,z[,nx,ny,nz]), got {data.shape[1]}")
+        """Read contacts from a CSV file (metres, in the frame they were measured in).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A text file (UTF-8) of 3 columns (x, y, z) or 6 (x, y, z, nx, ny, nz). An
+            optional header line names the columns; with a header, columns are taken by
+            name (any order, case-insensitive, extra columns rejected). Without one, the
+            order is x, y, z[, nx, ny, nz]. The separator is sniffed: comma, semicolon,
+            tab or runs of spaces. Blank lines and lines starting with ``#`` are skipped.
+
+        Raises
+        ------
+        ValidationError
+            For a path that is not a readable UTF-8 file, an empty file, ragged rows,
+            non-numeric or non-finite cells, a wrong column count or unknown header names;
+            the message names the file and the line.
+        """
+        import os
+
+        if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
+            raise ValidationError(f"from_csv needs a file path (str or os.PathLike), got {type(path).__name__}")
+        try:
+            with open(os.fspath(path), "r", encoding="utf-8-sig", newline="") as fh:
+                text = fh.read()
+        except FileNotFoundError:
+            raise ValidationError(f"{path}: no such contacts file") from None
+        except IsADirectoryError:
+            raise ValidationError(f"{path} is a directory, expected a CSV file of contacts") from None
+        except UnicodeDecodeError as exc:
+            raise ValidationError(f"{path}: not a UTF-8 text file (byte {exc.start}); expected a CSV of "
+                                  "contacts x,y,z[,nx,ny,nz]") from None
+        except OSError as exc:
+            raise ValidationError(f"{path}: cannot read contacts file: {exc.strerror or exc}") from None
+        return cls(*_parse_contacts_csv(text, str(path)))
 
 
-def _is_numeric_row(line: str) -> bool:
+_COLUMNS = ("x", "y", "z", "nx", "ny", "nz")
+
+
+def _split(line: str, sep):
+    return [c.strip() for c in (line.split(sep) if sep else line.split())]
+
+
+def _sniff(lines) -> str | None:
+    """The separator used by the first content line: ',', ';', tab, or None (whitespace)."""
+    first = lines[0][1]
+    for sep in (",", ";", "\t"):
+        if sep in first:
+            return sep
+    return None
+
+
+def _is_number(cell: str) -> bool:
     try:
-        [float(v) for v in line.strip().split(",") if v.strip()]
-        return bool(line.strip())
+        float(cell)
+        return True
     except ValueError:
         return False
+
+
+def _parse_contacts_csv(text: str, src: str):
+    if "\x00" in text:
+        raise ValidationError(f"{src}: holds NUL bytes: not a text CSV of contacts")
+    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ValidationError(f"{src}: empty: no contacts (expected rows x,y,z[,nx,ny,nz])")
+    sep = _sniff(lines)
+    order = list(range(6))
+    head = _split(lines[0][1], sep)
+    if not all(_is_number(c) for c in head):
+        lineno = lines[0][0]
+        names = [c.strip().strip('"').strip("'").lower() for c in head]
+        unknown = [n for n in names if n not in _COLUMNS]
+        if unknown:
+            raise ValidationError(f"{src}, line {lineno}: unknown column name(s) {unknown}; expected x,y,z "
+                                  "and optionally nx,ny,nz, in any order")
+        if len(set(names)) != len(names):
+            raise ValidationError(f"{src}, line {lineno}: a column name appears twice: {names}")
+        if set(names) not in ({"x", "y", "z"}, set(_COLUMNS)):
+            raise ValidationError(f"{src}, line {lineno}: header {names} must name x,y,z or x,y,z,nx,ny,nz")
+        order = [names.index(n) for n in _COLUMNS[:len(names)]]
+        ncol = len(names)
+        lines = lines[1:]
+        if not lines:
+            raise ValidationError(f"{src}: empty: a header line but no contacts")
+    else:
+        ncol = len(head)
+        if ncol not in (3, 6):
+            raise ValidationError(f"{src}, line {lines[0][0]}: expected 3 or 6 columns (x,y,z[,nx,ny,nz]), "
+                                  f"got {ncol}")
+    rows = np.empty((len(lines), ncol))
+    for r, (lineno, ln) in enumerate(lines):
+        cells = _split(ln, sep)
+        if len(cells) != ncol:
+            raise ValidationError(f"{src}, line {lineno}: {len(cells)} columns, expected {ncol} like the "
+                                  f"first row (ragged row, or a different separator?)")
+        for c, cell in enumerate(cells):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise ValidationError(f"{src}, line {lineno}, column {c + 1}: {cell!r} is not a number") from None
+            if not np.isfinite(v):
+                raise ValidationError(f"{src}, line {lineno}, column {c + 1}: {cell!r} is not finite")
+            rows[r, c] = v
+    data = rows[:, order]
+    if ncol == 3:
+        return data, None
+    bad = np.flatnonzero(np.linalg.norm(data[:, 3:], axis=1) < _NORMAL_MIN)
+    if len(bad):
+        raise ValidationError(f"{src}, line {lines[int(bad[0])][0]}: the normal is zero; normals must be non-zero")
+    return data[:, :3], data[:, 3:]

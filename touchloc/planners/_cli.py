@@ -1,4 +1,4 @@
-"""``touchloc active``: the active-localisation loop on a bundled mesh, with options."""
+"""``touchloc active``: the active-localisation loop on a mesh file or a bundled mesh, with options."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ PLANNERS = ("one-step", "two-step", "random", "kl")
 
 
 def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidence=3.0):
-    p.add_argument("--mesh", default=mesh, help=f"bundled mesh name (default: {mesh})")
+    from ..cli import add_mesh_argument
+
+    add_mesh_argument(p, default=mesh, help_extra=f"; default {mesh}")
     p.add_argument("--setting", default="planar", choices=["planar", "6dof"],
                    help="planar: x, y, yaw in a 100 mm square; 6dof: 60 mm cube, any rotation")
     p.add_argument("--planner", default="one-step", choices=PLANNERS)
@@ -26,7 +28,7 @@ def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidenc
 
 
 def register(sub):
-    p = sub.add_parser("active", help="active touch localisation of a bundled mesh (planner, loop, plots)")
+    p = sub.add_parser("active", help="active touch localisation in simulation of a mesh file or bundled mesh (planner, loop, plots)")
     add_arguments(p)
     p.set_defaults(func=run)
 
@@ -51,14 +53,21 @@ def run(args) -> int:
     from .viz import plot_run, write_html
 
     n_world = max(1, int(round(0.6 * args.candidates)))
-    sc = make_scenario(args.mesh, args.setting, n_world=n_world, n_relative=args.candidates - n_world,
+    from ..cli import load_mesh
+
+    obj = load_mesh(args.mesh, args.scale)
+    sc = make_scenario(obj, args.setting, n_world=n_world, n_relative=args.candidates - n_world,
                        n_hands=args.hands, seed=args.seed)
     true = sc.hidden_pose(rng=args.seed)
     world = SimulatedWorld(sc.obj, true, rng=args.seed + 1)
     planner = make_planner(args.planner, sc.model, args.beta)
-    yaw = np.degrees(np.arctan2(true[1, 0], true[0, 0]))
-    print(f"{sc.obj}\nsetting: {args.setting}; hidden pose: x={true[0, 3] * 1e3:.1f} mm, y={true[1, 3] * 1e3:.1f} mm, "
-          f"z={true[2, 3] * 1e3:.1f} mm, yaw={yaw:.1f} deg; planner: {planner.name}"
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(true[:3, :3])
+    rpy = np.degrees(q.as_euler("xyz"))
+    print(f"{sc.obj}\nsetting: {args.setting}; hidden pose: t = {np.round(true[:3, 3] * 1e3, 1).tolist()} mm, "
+          f"roll/pitch/yaw (xyz) = {np.round(rpy, 1).tolist()} deg, quat_xyzw = "
+          f"{np.round(q.as_quat(), 4).tolist()}; planner: {planner.name}"
           f"{' (KL)' if args.planner == 'kl' else ''}; {args.particles} particles\n")
     header = [True]
 

@@ -36,6 +36,8 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    from matplotlib.ticker import MaxNLocator
+
     k = [s.index for s in result.steps]
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.6))
     ax[0].plot(k, [s.entropy for s in result.steps], "o-")
@@ -49,6 +51,8 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
     ax[1].set_ylabel("mm")
     ax[1].legend(fontsize=8)
     ax[1].set_title("error")
+    for axis in ax[:2]:
+        axis.xaxis.set_major_locator(MaxNLocator(integer=True))
     a = ax[2]
     pts, _, _ = obj.sample_surface(1500, rng=0)
     if result.true_pose is not None:
@@ -59,7 +63,7 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
     q = pts[:400] @ T[:3, :3].T + T[:3, 3]
     a.scatter(q[:, 0] * 1e3, q[:, 1] * 1e3, s=2, c="tab:green", label="object (MAP estimate)")
     P = result.belief.poses[:, :3, 3]
-    a.scatter(P[:, 0] * 1e3, P[:, 1] * 1e3, s=1, c="tab:blue", alpha=0.3, label="particles (origin)")
+    a.scatter(P[:, 0] * 1e3, P[:, 1] * 1e3, s=6, c="navy", alpha=0.5, zorder=3, label="particles (object origin)")
     for sgm in _touch_segments(result):
         A, B = np.array(sgm["a"]) * 1e3, np.array(sgm["b"]) * 1e3
         a.plot([A[0], B[0]], [A[1], B[1]], "-", color="tab:red" if sgm["hit"] else "tab:orange", lw=0.8)
@@ -75,7 +79,7 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
     a.set_xlabel("x (mm)")
     a.set_ylabel("y (mm)")
     a.set_title("top view (red: hits, orange: misses)")
-    a.legend(fontsize=7, loc="upper right")
+    a.legend(fontsize=7, loc="upper right", markerscale=3)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -1,4 +1,5 @@
-"""``touchloc recognize``: simulate seed 002's data set and run its protocol."""
+"""``touchloc recognize``: simulate the scans of "Dynamic Tactile Sensing for Object Identification" and
+run that paper's protocol."""
 
 from __future__ import annotations
 
@@ -8,15 +9,15 @@ import numpy as np
 
 
 def register(sub):
-    p = sub.add_parser("recognize", help="identify objects from simulated tactile scans (seed 002)",
-                       description="Simulate seed 002's scans (7 objects x 20 scans, 160 frames of a 16x16 pad), "
+    p = sub.add_parser("recognize", help="identify objects from simulated tactile scans (\"Dynamic Tactile Sensing for Object Identification\")",
+                       description="Simulate the scans of \"Dynamic Tactile Sensing for Object Identification\" (7 objects x 20 scans, 160 frames of a 16x16 pad), "
                                    "train the view-based classifier on 16 scans per object, test on 4, over "
                                    "random splits, and print accuracy beside a nearest-neighbour baseline.")
     p.add_argument("--objects", choices=["bundled", "procedural"], default="bundled",
                    help="bundled real meshes (default) or procedural primitive shapes")
-    p.add_argument("--scans", type=int, default=20, help="scans per object (seed 002: 20)")
-    p.add_argument("--train", type=int, default=16, help="training scans per object (seed 002: 16)")
-    p.add_argument("--splits", type=int, default=10, help="random train/test splits (seed 002: 10)")
+    p.add_argument("--scans", type=int, default=20, help="scans per object (the paper: 20)")
+    p.add_argument("--train", type=int, default=16, help="training scans per object (the paper: 16)")
+    p.add_argument("--splits", type=int, default=10, help="random train/test splits (the paper: 10)")
     p.add_argument("--pca", choices=["svd", "sanger"], default="svd", help="local PCA method")
     p.add_argument("--n-vq", type=int, default=6)
     p.add_argument("--n-pc", type=int, default=8)

@@ -11,15 +11,16 @@ __all__ = ["plot_scan"]
 
 def plot_scan(frames, *, every: int = 2, n_shown: int = 60, columns: int = 12, title: str | None = None,
               max_value: float = 4095.0):
-    """Tile the frames of one scan, as in seed 002's Fig. 4 (bright = high pressure).
+    """Tile the frames of one scan, as in Fig. 4 of "Dynamic Tactile Sensing for Object
+    Identification" (bright = high pressure; the frame number is above each tile).
 
     Parameters
     ----------
     frames : (n_frames, rows, cols) array
     every : int
-        Show every ``every``-th frame (seed 002 shows every second frame).
+        Show every ``every``-th frame (the paper shows every second frame).
     n_shown : int
-        Number of frames shown (seed 002: 60).
+        Number of frames shown (the paper: 60).
     columns : int
         Frames per row of the figure.
 
@@ -37,14 +38,14 @@ def plot_scan(frames, *, every: int = 2, n_shown: int = 60, columns: int = 12, t
 
     idx = np.arange(0, F.shape[0], max(1, int(every)))[: max(1, int(n_shown))]
     rows = int(np.ceil(len(idx) / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(columns * 0.9, rows * 0.9 + (0.4 if title else 0.0)),
-                             squeeze=False)
+    head = 0.5 if title else 0.0  # inches kept free above the tiles for the title
+    fig, axes = plt.subplots(rows, columns, figsize=(columns * 0.9, rows * 1.05 + head), squeeze=False)
     for ax in axes.ravel():
         ax.axis("off")
     for ax, i in zip(axes.ravel(), idx):
         ax.imshow(F[i], cmap="gray", vmin=0, vmax=max_value, interpolation="nearest")
         ax.set_title(str(i), fontsize=6, pad=1)
+    fig.tight_layout(pad=0.2, h_pad=0.6, rect=(0, 0, 1, 1 - head / fig.get_figheight()))
     if title:
-        fig.suptitle(title)
-    fig.tight_layout(pad=0.2)
+        fig.suptitle(title, y=1 - 0.1 / fig.get_figheight(), va="top")
     return fig

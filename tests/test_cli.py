@@ -1,0 +1,250 @@
+"""The ``touchloc`` command: warnings, interruption, mesh files, outputs."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from touchloc import cli
+from touchloc.belief import PoseRegion, load_belief
+from touchloc.models import Contacts
+
+
+SCRIPT = Path(sys.executable).with_name("touchloc")
+COMMAND = [str(SCRIPT)] if SCRIPT.exists() else [sys.executable, "-m", "touchloc.cli"]
+
+
+def touchloc(*argv, timeout=600):
+    """Run the installed command in a new process, as a user would."""
+    return subprocess.run([*COMMAND, *map(str, argv)], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def mug_csv(tmp_path_factory, objects):
+    """Contacts on the mug at a planar pose; in metres and in millimetres."""
+    d = tmp_path_factory.mktemp("contacts")
+    obj = objects["mug"]
+    T = np.eye(4)
+    c, s = np.cos(0.7), np.sin(0.7)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [0.004, -0.003, -obj.bounds[0][2]]
+    pts, nrm, _ = obj.sample_surface(20, rng=3)
+    con = Contacts(pts, nrm).transform(T)
+    con.to_csv(d / "m.csv")
+    Contacts(con.points * 1000, con.normals).to_csv(d / "mm.csv")
+    return d / "m.csv", d / "mm.csv", T
+
+
+PLANAR = ["--rotation", "planar", "--half-extent", "0.01", "--center", "0", "0", "0.0"]
+
+
+def test_verbosity_options_on_every_subcommand():
+    parser = cli.build_parser()
+    for name, sub in parser._subparsers._group_actions[0].choices.items():
+        opts = {o for a in sub._actions for o in a.option_strings}
+        assert {"-q", "--quiet", "-v", "--verbose"} <= opts, name
+    a = parser.parse_args(["localize", "--mesh", "mug", "--contacts", "c.csv", "-v"])
+    assert a.verbose == 1 and not a.quiet
+    a = parser.parse_args(["-q", "localize", "--mesh", "mug", "--contacts", "c.csv"])
+    assert a.quiet and a.verbose == 0
+    with pytest.raises(SystemExit):
+        parser.parse_args(["localize", "--mesh", "mug", "--contacts", "c.csv", "-q", "-v"])
+
+
+def test_warnings_reach_the_terminal_unless_quiet(tmp_path, capsys):
+    # the bundled mug is open: loading it warns; the CSV then fails with a one-line error
+    bad = tmp_path / "c.csv"
+    bad.write_text("x,y,z\n")
+    for argv, shown in ((["localize"], True), (["-q", "localize"], False), (["localize", "-v"], True)):
+        assert cli.main(argv + ["--mesh", "mug", "--contacts", str(bad)]) == 1
+        err = capsys.readouterr().err
+        assert ("not watertight" in err) == shown, argv
+        assert "c.csv: empty" in err
+        if "-v" in argv:
+            assert "MeshRepairWarning" in err
+
+
+def test_degenerate_result_says_why_and_suggests_millimetres(mug_csv):
+    _, mm, _ = mug_csv
+    r = touchloc("localize", "--mesh", "mug", "--contacts", mm, "--method", "hf", *PLANAR)
+    assert r.returncode == 1
+    assert "degenerate" in r.stderr
+    assert "millimetres" in r.stderr and "--center" in r.stderr
+    assert "touchloc: warning:" in r.stderr  # the estimator's own warning is shown, too
+
+
+def test_bad_csv_is_one_line_error_not_a_traceback(tmp_path):
+    p = tmp_path / "c.csv"
+    p.write_text("x;y;z\n1;2\n")
+    r = touchloc("localize", "--mesh", "mug", "--contacts", p)
+    assert r.returncode == 1
+    assert "line 2" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_ctrl_c_ends_with_one_line_and_exit_130(mug_csv):
+    m, _, _ = mug_csv
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([*COMMAND, "localize", "--mesh", "mug", "--contacts", str(m),
+                          "--half-extent", "0.2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        for line in p.stdout:  # wait until the estimator runs
+            if "method ss" in line:
+                break
+        time.sleep(1.0)
+        assert p.poll() is None, "finished before it could be interrupted"
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "touchloc localize: interrupted"
+
+
+def test_progress_lines_on_a_non_tty_stderr(capsys):
+    from touchloc._util import progress
+
+    assert list(progress(range(5), desc="work", interval=0.0)) == list(range(5))
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("work: 0/5") and err[-1].startswith("work: 4/5") and len(err) == 5
+    assert list(progress(range(5), desc="work")) == list(range(5))
+    assert capsys.readouterr().err == ""  # at most a line per interval (5 s)
+    assert list(progress(range(3), desc="w", enabled=False, interval=0.0)) == [0, 1, 2]
+    assert capsys.readouterr().err == ""
+
+
+def test_save_load_json_round_trip(mug_csv, tmp_path):
+    m, _, T = mug_csv
+    path = tmp_path / "b.npz"
+    r = touchloc("localize", "--mesh", "mug", "--contacts", m, "--method", "hf", *PLANAR, "--save", path, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    M = np.array(doc["map_pose"]["matrix"])
+    from scipy.spatial.transform import Rotation
+
+    assert np.allclose(Rotation.from_quat(doc["map_pose"]["quat_xyzw"]).as_matrix(), M[:3, :3], atol=1e-9)
+    assert np.allclose(doc["map_pose"]["translation"], M[:3, 3])
+    assert np.linalg.norm(M[:2, 3] - T[:2, 3]) < 0.005
+    belief, contacts = load_belief(path)
+    assert np.allclose(belief.map_pose(), M) and np.allclose(belief.info["map_pose"], M)
+    c0 = Contacts.from_csv(m)
+    assert np.allclose(contacts.points, c0.points) and np.allclose(contacts.normals, c0.normals)
+    assert isinstance(belief.region, PoseRegion) and belief.region.dim == 3
+    assert belief.info["model"]["sigma_pos"] == 0.002 and belief.info["method"] == "hf"
+    r2 = touchloc("localize", "--mesh", "mug", "--load", path, "--json", "--plot", tmp_path / "b.png")
+    assert r2.returncode == 0, r2.stderr
+    assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
+    assert np.allclose(json.loads(r2.stdout)["map_pose"]["matrix"], M)
+
+
+# -- meshes and identify -------------------------------------------------------------------
+def test_load_mesh_scales_files_and_bundled_names(tmp_path, objects):
+    from touchloc.data import mesh_path
+
+    ref = objects["mug"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.allclose(cli.load_mesh("mug").extents, ref.extents)
+        assert np.allclose(cli.load_mesh("mug", "2").extents, 2 * ref.extents)
+        mm = tmp_path / "mug_mm.obj"
+        cli.load_mesh("mug", 1000.0).mesh.export(mm)
+        assert np.allclose(cli.load_mesh(str(mm), 0.001).extents, ref.extents, rtol=1e-6)
+    assert cli.split_mesh_spec(f"{mm}:0.001") == (str(mm), 0.001)
+    assert cli.split_mesh_spec(str(mesh_path("mug"))) == (str(mesh_path("mug")), None)
+    for bad in ("0", "-1", "mm", "inf"):
+        with pytest.raises(Exception, match="--scale"):
+            cli.load_mesh("mug", bad)
+    with pytest.raises(Exception, match="no such file"):
+        cli.load_mesh(str(tmp_path / "none.obj"))
+
+
+@pytest.fixture(scope="module")
+def ycb_like(tmp_path_factory, objects):
+    """Two candidates with the same file name in different folders, the second in millimetres."""
+    d = tmp_path_factory.mktemp("ycb")
+    (d / "mug").mkdir(), (d / "can").mkdir()
+    objects["mug"].mesh.export(d / "mug" / "textured.obj")
+    can = objects["can"].mesh.copy()
+    can.apply_scale(1000.0)
+    can.export(d / "can" / "textured.obj")
+    return d / "mug" / "textured.obj", d / "can" / "textured.obj"
+
+
+def test_identify_unique_names_and_per_mesh_scale(ycb_like, mug_csv):
+    m, _, _ = mug_csv
+    mug, can = ycb_like
+    r = touchloc("identify", "--meshes", mug, f"{can}:0.001", "--contacts", m, *PLANAR, "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert set(doc["posterior"]) == {"mug/textured", "can/textured"}
+    assert doc["identity"] == "mug/textured" and doc["posterior"]["mug/textured"] > 0.9
+
+
+def test_identify_prints_none_when_no_candidate_explains_the_contacts(mug_csv):
+    _, mm, _ = mug_csv
+    r = touchloc("identify", "--meshes", "mug", "can", "--contacts", mm, *PLANAR)
+    assert r.returncode == 1
+    assert r.stdout.strip().splitlines()[0] == "none"
+    assert "millimetres" in r.stderr
+
+
+def test_identify_api_refuses_when_every_candidate_is_degenerate(objects, mug_csv):
+    from touchloc.belief import identify
+    from touchloc.errors import BeliefDegenerateError
+    from touchloc.models import ProximityModel
+
+    m, _, _ = mug_csv
+    far = Contacts.from_csv(m).transform(np.array([[1, 0, 0, 1.0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
+    region = PoseRegion.planar((0, 0), 0.01, z=-objects["mug"].bounds[0][2])
+    models = {n: ProximityModel(objects[n], 0.002, 0.1) for n in ("mug", "can")}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(BeliefDegenerateError, match="no candidate"):
+            identify(models, far, region, rng=0)
+        post = identify(models, Contacts.from_csv(m), region, rng=0)
+    assert post["mug"] > 0.9
+
+
+def test_active_takes_a_mesh_file_with_scale_and_prints_the_full_pose(ycb_like, tmp_path):
+    _, can_mm = ycb_like
+    r = touchloc("active", "--mesh", can_mm, "--scale", "0.001", "--setting", "6dof", "--max-touches", "1",
+                 "--particles", "200", "--candidates", "8", "--out", "")
+    assert r.returncode == 0, r.stderr
+    assert "extents=[0.0" in r.stdout  # scaled to metres
+    assert "roll/pitch/yaw" in r.stdout and "quat_xyzw" in r.stdout
+
+
+def test_heartbeat_reports_long_silent_work(capsys):
+    err = []
+    with cli.heartbeat("work", interval=0.05):
+        deadline = time.monotonic() + 30
+        while not err and time.monotonic() < deadline:  # wait for the first line, however loaded the machine
+            time.sleep(0.05)
+            err += capsys.readouterr().err.splitlines()
+    err += capsys.readouterr().err.splitlines()  # lines written before the exit
+    assert err and all(line.startswith("work: still working (") for line in err)
+    time.sleep(0.2)
+    assert capsys.readouterr().err == ""  # stopped on exit
+
+
+def test_diagnose_names_units_region_and_mesh(objects, mug_csv):
+    from touchloc.belief import ParticleBelief
+
+    m, mm, _ = mug_csv
+    obj = objects["mug"]
+    region = PoseRegion.planar((0, 0), 0.01)
+    b = ParticleBelief(np.eye(4)[None], info={"mean_cost_at_map": 4e9})
+    lines = cli.diagnose(obj, Contacts.from_csv(mm), region, b, sigma_pos=0.002)
+    text = "\n".join(lines)
+    assert "unit mismatch" in text and "contacts in millimetres" in text and "--center" in text
+    b = ParticleBelief(np.eye(4)[None], info={"mean_cost_at_map": 16.0})
+    text = "\n".join(cli.diagnose(obj, Contacts.from_csv(m), region, b, sigma_pos=0.002))
+    assert "4 sigma" in text and "millimetres" not in text and "check: units" in text
