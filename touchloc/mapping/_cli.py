@@ -8,8 +8,9 @@ from pathlib import Path
 
 def register(sub):
     p = sub.add_parser("map", help="map a hidden simulated object from touch alone (plot, HTML view, mesh file)")
-    p.add_argument("--mesh", default="can", help="bundled mesh name or a mesh file (default: can)")
-    p.add_argument("--scale", type=float, default=None, help="scale a mesh file to metres (e.g. 0.001 for mm)")
+    from ..cli import add_mesh_argument
+
+    add_mesh_argument(p, default="can", help_extra="; the hidden object (default: can)")
     p.add_argument("--touches", type=int, default=50, help="number of guarded touches (default 50)")
     p.add_argument("--planner", default="uncertainty", choices=["uncertainty", "random", "lattice"])
     p.add_argument("--method", default="gpis", choices=["gpis", "occupancy"])
@@ -29,26 +30,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _load(name, scale):
-    import warnings
-
-    from ..data import MESHES, load_object
-    from ..errors import ValidationError
-    from ..models import MeshObject
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        if name in MESHES:
-            obj = load_object(name)
-            if scale is not None:
-                obj = MeshObject(obj.mesh.copy().apply_scale(scale), name=name)
-            return obj
-        if not Path(name).exists():
-            raise ValidationError(f"--mesh: {name!r} is neither a bundled mesh ({', '.join(sorted(MESHES))}) "
-                                  "nor a file")
-        return MeshObject.from_file(name, scale=1.0 if scale is None else scale)
-
-
 def run(args) -> int:
     import numpy as np
     from scipy.spatial.transform import Rotation
@@ -58,7 +39,9 @@ def run(args) -> int:
     from .explore import explore
     from .metrics import chamfer_distance, fscore
 
-    obj = _load(args.mesh, args.scale)
+    from ..cli import load_mesh
+
+    obj = load_mesh(args.mesh, args.scale)
     rng = np.random.default_rng(args.seed)
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi)).as_matrix()
