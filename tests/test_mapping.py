@@ -257,3 +257,27 @@ def test_empty_level_set_is_an_error():
     with pytest.raises(MappingError, match="empty level set"):
         smap.to_mesh()
     assert isinstance(MappingError("x"), TouchlocError)
+
+
+def test_map_command_writes_plot_html_mesh_and_map(tmp_path, capsys):
+    from touchloc.cli import main
+
+    files = {k: tmp_path / f"m.{k}" for k in ("png", "html", "obj", "npz")}
+    rc = main(["map", "--mesh", "lemon", "--touches", "10", "--plot", str(files["png"]), "--html",
+               str(files["html"]), "--save", str(files["obj"]), "--save-map", str(files["npz"])])
+    assert rc == 0
+    assert all(f.stat().st_size > 1000 for f in files.values())
+    out = capsys.readouterr().out
+    assert "Chamfer" in out and "F-score" in out
+    back = ShapeMap.load(files["npz"])
+    assert len(back.results) == 10
+    assert MeshObject.from_file(files["obj"], check_units=False).n_faces > 100
+
+
+def test_map_command_with_a_moving_object(tmp_path):
+    from touchloc.cli import main
+
+    png = tmp_path / "s.png"
+    assert main(["map", "--mesh", "lemon", "--touches", "6", "--moving", "push", "--fingers", "3",
+                 "--plot", str(png)]) == 0
+    assert png.exists() and (tmp_path / "s_trajectory.png").exists()
