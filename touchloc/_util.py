@@ -7,6 +7,7 @@ from typing import Iterable
 
 import numpy as np
 
+from ._validate import as_points, as_poses  # noqa: F401  (one implementation, re-exported)
 from .errors import ValidationError
 
 
@@ -19,39 +20,6 @@ def as_rng(rng=None) -> np.random.Generator:
     if isinstance(rng, np.random.SeedSequence):
         return np.random.default_rng(rng)
     raise ValidationError(f"rng must be None, an int seed or a numpy Generator, got {type(rng).__name__}")
-
-
-def as_points(x, name: str, *, allow_empty: bool = False) -> np.ndarray:
-    """Validate an (M, 3) finite float array and return it as a float64 copy-free view."""
-    try:
-        a = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name} must be an (M, 3) array of finite floats: {exc}") from None
-    if a.ndim == 1 and a.shape == (3,):
-        a = a[None, :]
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise ValidationError(f"{name} must be (M, 3) finite, got {a.shape}")
-    if not allow_empty and a.shape[0] == 0:
-        raise ValidationError(f"{name} must hold at least one row, got (0, 3)")
-    if not np.all(np.isfinite(a)):
-        bad = int(np.flatnonzero(~np.all(np.isfinite(a), axis=1))[0])
-        raise ValidationError(f"{name} must be (M, 3) finite, row {bad} is {a[bad].tolist()}")
-    return a
-
-
-def as_poses(x, name: str = "poses") -> np.ndarray:
-    """Validate an (N, 4, 4) (or (4, 4)) batch of rigid transforms; returns (N, 4, 4) float64."""
-    try:
-        a = np.asarray(x, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name} must be (N, 4, 4) homogeneous matrices: {exc}") from None
-    if a.shape == (4, 4):
-        a = a[None]
-    if a.ndim != 3 or a.shape[1:] != (4, 4):
-        raise ValidationError(f"{name} must be (N, 4, 4) homogeneous matrices, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValidationError(f"{name} must be finite")
-    return a
 
 
 def progress(iterable: Iterable, *, total=None, desc=None, enabled=None, leave=False, interval: float = 5.0):

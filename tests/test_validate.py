@@ -1,0 +1,118 @@
+"""Unit tests of the boundary validators in touchloc._validate."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from touchloc import _util
+from touchloc._validate import (as_count, as_path, as_points, as_pose, as_poses, as_positive_float,
+                                as_probability, as_timeout)
+from touchloc.errors import TouchlocError, ValidationError
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf"), "1", None, [1.0], True, 1j,
+                                 np.array([1.0, 2.0])])
+def test_positive_float_rejects(bad):
+    with pytest.raises(ValidationError, match="sigma"):
+        as_positive_float(bad, "sigma")
+
+
+def test_positive_float_accepts_numpy_scalars_and_ints():
+    assert as_positive_float(np.float32(0.5), "x") == 0.5
+    assert as_positive_float(3, "x") == 3.0
+    assert isinstance(as_positive_float(np.array(2.0), "x"), float)
+    with pytest.raises(ValidationError, match="<= 1"):
+        as_positive_float(2.0, "x", high=1.0)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -0.1, "1", None])
+def test_timeout_rejects_values_that_would_hang(bad):
+    with pytest.raises(ValidationError):
+        as_timeout(bad)
+
+
+def test_timeout_none_only_when_allowed():
+    assert as_timeout(None, allow_none=True) is None
+    assert as_timeout(0) == 0.0
+
+
+def test_count():
+    assert as_count(3.0, "n") == 3
+    assert as_count(np.int64(7), "n") == 7
+    for bad in (2.5, float("nan"), float("inf"), True, "3", None, 0, -3):
+        with pytest.raises(ValidationError, match="n must"):
+            as_count(bad, "n")
+    with pytest.raises(ValidationError, match="memory"):
+        as_count(10**13, "n", max=10**7, why="memory")
+    assert as_count(0, "n", min=0) == 0
+
+
+def test_probability():
+    assert as_probability(0.0, "p") == 0.0 and as_probability(1, "p") == 1.0
+    for bad in (1.5, -0.01, float("nan")):
+        with pytest.raises(ValidationError):
+            as_probability(bad, "p")
+    with pytest.raises(ValidationError):
+        as_probability(1.0, "p", open_high=True)
+
+
+def test_poses_accept_rotations_and_reject_reflections_and_shear():
+    T = np.tile(np.eye(4), (5, 1, 1))
+    T[:, :3, :3] = Rotation.random(5, random_state=0).as_matrix()
+    T[:, :3, 3] = [0.1, -0.2, 0.3]
+    out = as_poses(T)
+    assert out.shape == (5, 4, 4) and out.dtype == np.float64
+    assert as_pose(T[0]).shape == (4, 4)
+
+    refl = T.copy()
+    refl[2, :3, 0] *= -1
+    with pytest.raises(ValidationError, match=r"poses\[2\].*det"):
+        as_poses(refl)
+    shear = T.copy()
+    shear[1, 0, 1] += 1e-3
+    with pytest.raises(ValidationError, match=r"poses\[1\].*orthonormal"):
+        as_poses(shear)
+    bottom = T.copy()
+    bottom[0, 3, 0] = 1.0
+    with pytest.raises(ValidationError, match="bottom row"):
+        as_poses(bottom)
+    # tolerant to text-file rounding
+    assert as_poses(np.round(T, 8)).shape == (5, 4, 4)
+    # non-rigid batches pass when asked
+    assert as_poses(shear, rigid=False).shape == (5, 4, 4)
+
+
+@pytest.mark.parametrize("bad", [np.eye(3), np.zeros((2, 4)), "eye", None, [[1, 2], [3]],
+                                 np.full((4, 4), np.nan)])
+def test_pose_shapes(bad):
+    with pytest.raises(ValidationError):
+        as_pose(bad)
+
+
+def test_points():
+    assert as_points([1, 2, 3], "p").shape == (1, 3)
+    for bad in ([1, 2], np.zeros((0, 3)), [[1, 2, math.inf]], "abc", None):
+        with pytest.raises(ValidationError, match="p must"):
+            as_points(bad, "p")
+    assert as_points(np.zeros((0, 3)), "p", allow_empty=True).shape == (0, 3)
+
+
+def test_util_reexports_one_implementation():
+    assert _util.as_points is as_points and _util.as_poses is as_poses
+
+
+def test_path(tmp_path):
+    f = tmp_path / "a.csv"
+    f.write_text("1,2,3\n")
+    assert as_path(str(f)) == f
+    for bad in (True, 1, None, 3.0, ""):
+        with pytest.raises(ValidationError):
+            as_path(bad)
+    with pytest.raises(ValidationError, match="does not exist"):
+        as_path(tmp_path / "missing.csv")
+    with pytest.raises(ValidationError, match="directory"):
+        as_path(tmp_path)
+    assert as_path(tmp_path, kind="dir") == tmp_path
+    assert issubclass(ValidationError, TouchlocError)
