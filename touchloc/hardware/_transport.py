@@ -86,7 +86,7 @@ class SerialLink(Link):
             raise DeviceDisconnected(f"write to {getattr(self.port, 'port', self.port)!r} failed: {exc}") from exc
 
     def read_some(self, timeout: float) -> bytes:
-        end = time.monotonic() + max(0.0, timeout)
+        end = time.monotonic() + _finite_wait(timeout)
         try:
             while True:
                 n = getattr(self.port, "in_waiting", 0) or 0
@@ -141,13 +141,13 @@ class CANLink(Link):
             for i in range(0, len(data), 8):
                 self.bus.send(can.Message(arbitration_id=self.tx_id, data=data[i:i + 8],
                                           is_extended_id=False), timeout=1.0)
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"CAN send on id {self.tx_id} failed: {exc}") from exc
+        except Exception as exc:  # CanError, or a bus shut down under us
+            raise DeviceDisconnected(f"CAN send on id {self.tx_id} failed: {type(exc).__name__}: {exc}") from exc
 
     def read_some(self, timeout: float) -> bytes:
         import can
 
-        end = time.monotonic() + max(0.0, timeout)
+        end = time.monotonic() + _finite_wait(timeout)
         try:
             while True:
                 left = end - time.monotonic()
@@ -160,11 +160,23 @@ class CANLink(Link):
                         return bytes(msg.data[:msg.dlc])
                 if time.monotonic() >= end:
                     return b""
-        except can.CanError as exc:
-            raise DeviceDisconnected(f"CAN receive failed: {exc}") from exc
+        except Exception as exc:  # CanError, or a bus shut down under us
+            if isinstance(exc, HardwareError):
+                raise
+            raise DeviceDisconnected(f"CAN receive failed: {type(exc).__name__}: {exc}") from exc
 
     def close(self) -> None:
         pass  # the bus belongs to the caller
+
+
+def _finite_wait(timeout) -> float:
+    """A read's wait in seconds: NaN or negative -> 0; +inf is refused (it would block forever)."""
+    t = float(timeout)
+    if t != t or t < 0:
+        return 0.0
+    if t == float("inf"):
+        raise ValidationError("a read timeout must be finite, got inf")
+    return t
 
 
 def as_link(transport) -> Link:

@@ -17,6 +17,7 @@ assumes them.
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import struct
 import time
@@ -24,8 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import (ChecksumError, FirmwareError, HardwareError, HardwareTimeout, ProtocolError,
+from ..errors import (ChecksumError, FirmwareError, HardwareError, HardwareTimeout, ProtocolError, TouchlocError,
                       ValidationError)
+from .._validate import as_count, as_probability, as_timeout
 from ._transport import Link, as_link
 
 __all__ = [
@@ -339,6 +341,22 @@ def _unpack(fmt: str, cmd: int, payload: bytes):
     return struct.unpack(fmt, payload)
 
 
+def _typed(method):
+    """Let only library errors leave a DSACON32m call; a raw one becomes ProtocolError."""
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except TouchlocError:
+            raise
+        except Exception as exc:
+            raise ProtocolError(f"DSACON32m {method.__name__}: unusable reply "
+                                f"({type(exc).__name__}: {exc})") from exc
+
+    return wrapper
+
+
 class DSACON32m:
     """The DSACON32m tactile controller over an injected transport.
 
@@ -366,10 +384,14 @@ class DSACON32m:
     def __init__(self, port, *, timeout: float = 1.0, connect: bool = True, open_timeout: float = 3.0,
                  retries: int = 3, max_skip: int = 65536, max_packets: int = 1000,
                  max_payload: int = 16384):
-        if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+        timeout = as_timeout(timeout)
+        if timeout <= 0:
             raise ValidationError(f"timeout must be a positive number of seconds, got {timeout!r}")
-        if int(retries) < 1:
-            raise ValidationError(f"retries must be at least 1, got {retries}")
+        open_timeout = as_timeout(open_timeout, "open_timeout")
+        retries = as_count(retries, "retries", max=100)
+        max_skip = as_count(max_skip, "max_skip", min=0)
+        max_packets = as_count(max_packets, "max_packets", min=0)
+        max_payload = as_count(max_payload, "max_payload", max=65535, why="the packet length field is 16 bits")
         self.link: Link = as_link(port)
         self.timeout = float(timeout)
         self.open_timeout = float(open_timeout)
@@ -393,7 +415,7 @@ class DSACON32m:
 
     def _wait(self, want: int, timeout: float | None = None) -> bytes:
         """Read packets until one with id ``want``; frames met on the way are kept."""
-        timeout = self.timeout if timeout is None else float(timeout)
+        timeout = self.timeout if timeout is None else as_timeout(timeout)
         deadline = time.monotonic() + timeout
         skipped0 = self.parser.skipped
         others = 0
@@ -426,6 +448,7 @@ class DSACON32m:
             raise
 
     # -- opening ------------------------------------------------------------------------
+    @_typed
     def connect(self) -> None:
         """Stop acquisition (with retries), flush, read controller, sensor and matrix info."""
         last = None
@@ -447,21 +470,23 @@ class DSACON32m:
         self.matrix_infos = [self.matrix_info(m) for m in range(self.sensor.nb_matrices)]
 
     # -- queries ------------------------------------------------------------------------
+    @_typed
     def controller_info(self) -> ControllerInfo:
         """Query 0x01: serial number, versions, interface, CAN settings."""
         return ControllerInfo(*_unpack(_FMT_CONTROLLER, CMD_CONTROLLER, self._request(CMD_CONTROLLER)))
 
+    @_typed
     def sensor_info(self) -> SensorInfo:
         """Query 0x02: number of matrices and the sensor's serial number."""
         return SensorInfo(*_unpack(_FMT_SENSOR, CMD_SENSOR, self._request(CMD_SENSOR)))
 
     def _matrix(self, m) -> int:
-        if int(m) != m or not 0 <= m <= 255:
-            raise ValidationError(f"matrix must be an index 0..255, got {m!r}")
+        m = as_count(m, "matrix", min=0, max=255)
         if self.matrix_infos and m >= len(self.matrix_infos):
             raise ValidationError(f"matrix must be 0..{len(self.matrix_infos) - 1}, got {m}")
         return int(m)
 
+    @_typed
     def matrix_info(self, m: int) -> MatrixInfo:
         """Query 0x0B: texel sizes (mm), cells, position and full scale of matrix ``m``."""
         m = self._matrix(m)
@@ -474,11 +499,11 @@ class DSACON32m:
         return [(i.cells_y, i.cells_x) for i in self.matrix_infos]
 
     # -- acquisition -----------------------------------------------------------------------
+    @_typed
     def configure_acquisition(self, *, start: bool, framerate: int = 0, rle: bool = True,
                               timeout: float | None = None) -> None:
         """Command 0x03: start (``framerate`` > 0: streaming; 0: one frame) or stop acquisition."""
-        if int(framerate) != framerate or not 0 <= framerate <= 0xFFFF:
-            raise ValidationError(f"framerate must be an integer 0..65535 (frames/s), got {framerate!r}")
+        framerate = as_count(framerate, "framerate (frames/s)", min=0, max=0xFFFF)
         flags = (ACQ_START if start else 0) | (ACQ_RLE if rle else 0)
         _check_error(CMD_ACQUISITION, self._request(CMD_ACQUISITION, struct.pack("<BH", flags, int(framerate)), timeout))
         self.rle = bool(rle)
@@ -492,6 +517,7 @@ class DSACON32m:
                 raise
         return decode_frame(self._frames.popleft(), self.shapes)
 
+    @_typed
     def read_frame(self, *, timeout: float | None = None) -> TactileFrame:
         """One tactile frame: the next streamed frame, or a single frame on request."""
         if not self.matrix_infos:
@@ -502,14 +528,15 @@ class DSACON32m:
         self.configure_acquisition(start=True, framerate=0, rle=self.rle, timeout=timeout)
         return self._next_frame(timeout)
 
+    @_typed
     def start_streaming(self, framerate: int = 30, *, rle: bool = True) -> None:
         """Ask the controller to push frames at ``framerate`` frames/s."""
-        if int(framerate) < 1:
-            raise ValidationError(f"streaming needs a framerate >= 1 frame/s, got {framerate}")
+        framerate = as_count(framerate, "streaming framerate (frames/s)", min=1, max=0xFFFF)
         self._frames.clear()
         self.configure_acquisition(start=True, framerate=framerate, rle=rle)
         self.streaming = True
 
+    @_typed
     def stop_streaming(self) -> None:
         """Stop pushed frames (frames still in flight are skipped)."""
         self.streaming = False
@@ -535,18 +562,19 @@ class DSACON32m:
             k += 1
 
     # -- sensitivity and threshold ------------------------------------------------------------
+    @_typed
     def sensitivity(self, m: int) -> SensitivityInfo:
         """Query 0x12: whether matrix ``m``'s sensitivity is adjustable, current and factory values."""
         m = self._matrix(m)
         v = _unpack(_FMT_SENS_INFO, CMD_GET_SENSITIVITY, self._request(CMD_GET_SENSITIVITY, bytes([m])))
         return SensitivityInfo(bool(v[1] & 0x02), float(v[2]), float(v[3]))
 
+    @_typed
     def set_sensitivity(self, m: int, value: float, *, persistent: bool = False, all_matrices: bool = False,
                         reset: bool = False) -> None:
         """Command 0x0F: set the sensitivity (0..1) of matrix ``m`` (or all, or reset to factory)."""
         m = self._matrix(m)
-        if not (0.0 <= float(value) <= 1.0):
-            raise ValidationError(f"sensitivity must lie in [0, 1], got {value}")
+        value = as_probability(value, "sensitivity")
         flags = (0x80 if persistent else 0) | (0x02 if all_matrices else 0) | (0x01 if reset else 0)
         payload = struct.pack("<BBf", flags, m, float(value))
         if persistent:  # no reply when stored persistently
@@ -554,16 +582,17 @@ class DSACON32m:
             return
         _check_error(CMD_SET_SENSITIVITY, self._request(CMD_SET_SENSITIVITY, payload))
 
+    @_typed
     def threshold(self, m: int) -> int:
         """Query 0x14: the threshold of matrix ``m`` (texel units)."""
         m = self._matrix(m)
         return int(_unpack("<HH", CMD_GET_THRESHOLD, self._request(CMD_GET_THRESHOLD, bytes([m])))[1])
 
+    @_typed
     def set_threshold(self, m: int, value: int, *, persistent: bool = False, all_matrices: bool = False) -> None:
         """Command 0x13: set the threshold (0..4095) of matrix ``m``."""
         m = self._matrix(m)
-        if int(value) != value or not 0 <= value <= 4095:
-            raise ValidationError(f"threshold must be an integer 0..4095, got {value!r}")
+        value = as_count(value, "threshold", min=0, max=4095)
         flags = (0x80 if persistent else 0) | (0x02 if all_matrices else 0)
         payload = struct.pack("<BBH", flags, m, int(value))
         if persistent:

@@ -20,7 +20,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import HardwareError, ValidationError
+from .._validate import as_count, as_pose, as_positive_float, as_timeout
+from ..errors import HardwareError, TouchlocError, ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, HandTouch, TouchResult
 from .kinematics import FINGER_AXES, SDH2Kinematics
@@ -104,33 +105,29 @@ class GuardedTouchExecutor:
             if infos and len(infos) == 6:
                 kinematics = kinematics.with_matrix_info(infos)
         self.kinematics = kinematics
-        T = np.eye(4) if hand_pose is None else np.asarray(hand_pose, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6):
-            raise ValidationError("hand_pose must be a finite rigid (4, 4) transform T_world_hand")
+        T = np.eye(4) if hand_pose is None else as_pose(hand_pose, "hand_pose (T_world_hand)")
         self.hand_pose = T
         self._hand_from_world = np.linalg.inv(T)
-        if not 0 < threshold <= 4095:
-            raise ValidationError(f"threshold must lie in 1..4095, got {threshold}")
-        self.threshold = int(threshold)
-        if not (step > 0):
-            raise ValidationError(f"step must be a positive length (m), got {step}")
-        self.step = float(step)
-        if not (speed > 0):
-            raise ValidationError(f"speed must be positive (rad/s), got {speed}")
-        self.speed = float(speed)
-        rest = np.radians([0.0, -30, 30, -30, 30, -30, 30]) if rest_angles is None else np.asarray(rest_angles, float)
-        if rest.shape != (7,):
+        self.threshold = as_count(threshold, "threshold (texel units)", min=1, max=4095)
+        self.step = as_positive_float(step, "step (m)", high=0.1)
+        self.speed = as_positive_float(speed, "speed (rad/s)")
+        if rest_angles is None:
+            rest = np.radians([0.0, -30, 30, -30, 30, -30, 30])
+        else:
+            try:
+                rest = np.asarray(rest_angles, float)
+            except (TypeError, ValueError):
+                rest = np.zeros(0)
+        if rest.shape != (7,) or not np.all(np.isfinite(rest)):
             raise ValidationError(f"rest_angles must be 7 joint angles (rad), got {rest.shape}")
         self.rest_angles = rest
         self.log = SessionLog(log) if log is not None and not isinstance(log, SessionLog) else log
-        self.move_timeout = float(move_timeout)
+        self.move_timeout = as_timeout(move_timeout, "move_timeout")
         self.retreat = bool(retreat)
         if mode not in ("steps", "velocity"):
             raise ValidationError(f"mode must be 'steps' or 'velocity', got {mode!r}")
         self.mode = mode
-        if not (probe_speed > 0):
-            raise ValidationError(f"probe_speed must be positive (m/s), got {probe_speed}")
-        self.probe_speed = float(probe_speed)
+        self.probe_speed = as_positive_float(probe_speed, "probe_speed (m/s)")
         self.stops_sent = 0
 
     # -- planning (no I/O) ----------------------------------------------------------------
@@ -198,7 +195,7 @@ class GuardedTouchExecutor:
         """Best-effort stop after a fault."""
         try:
             self.hand.stop()
-        except HardwareError:
+        except Exception:  # a dead link or a garbled answer to stop: the stop went out or could not
             pass
         self.stops_sent += 1
 
@@ -215,7 +212,13 @@ class GuardedTouchExecutor:
         plan = self.plan(touch, finger=finger)
         try:
             result, angles, blobs = self._run(touch, plan)
-        except BaseException:
+        except TouchlocError:
+            self._stop()
+            raise
+        except Exception as exc:  # never let a raw error leave a motion command
+            self._stop()
+            raise HardwareError(f"guarded touch {touch.name!r} failed: {type(exc).__name__}: {exc}") from exc
+        except BaseException:  # KeyboardInterrupt, SystemExit: stop, and let them through
             self._stop()
             raise
         if self.log is not None:
@@ -295,7 +298,7 @@ class GuardedTouchExecutor:
             try:  # best effort; the original error is what the caller needs
                 hand.stop()
                 hand.controller(0)
-            except HardwareError:
+            except Exception:
                 pass
             raise
 

@@ -12,6 +12,7 @@ before the typed error is raised, so that a failed exchange never leaves a finge
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import re
 import time
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..errors import (FirmwareError, HardwareError, HardwareTimeout,
                       JointLimitError, ProtocolError, ValidationError)
+from .._validate import as_timeout
 from ._transport import CANLink, Link, as_link
 
 __all__ = ["SDH2", "SDHFirmwareError", "AxisState", "SDH_ERROR_NAMES", "GripPreset",
@@ -48,6 +50,75 @@ DEFAULT_VLIM_DEG = np.array([80.0, 100, 100, 100, 100, 100, 100])
 DEFAULT_ALIM_DEG = np.array([5000.0, 400, 1500, 400, 1500, 400, 1500])
 
 _LINE_MAX = 4096  # bytes: a reply line longer than this is a protocol error
+
+#: physical ranges of reply values (wire units); a reply outside is a ProtocolError.
+#: Joints turn less than a full turn, speeds stay well below 1000 deg/s, and no move or
+#: grip of the hand lasts ten minutes, so a value beyond these bounds is a corrupted reply.
+REPLY_RANGES = {
+    "angle": (-360.0, 360.0),          # deg
+    "velocity": (-1000.0, 1000.0),     # deg/s
+    "acceleration": (0.0, 100_000.0),  # deg/s^2
+    "duration": (0.0, 600.0),          # s
+    "temperature": (-60.0, 200.0),     # deg C
+}
+_KIND = {"p": "angle", "pos": "angle", "tpap": "angle", "p_min": "angle", "p_max": "angle",
+         "v": "velocity", "vel": "velocity", "rvel": "velocity", "tvav": "velocity", "vlim": "velocity",
+         "a": "acceleration", "alim": "acceleration", "temp": "temperature"}
+MAX_AXES = 64  # an identification reply announcing more axes than this is corrupt
+
+
+def _in_range(v: np.ndarray, kind: str, what: str) -> np.ndarray:
+    lo, hi = REPLY_RANGES[kind]
+    bad = (v < lo) | (v > hi)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ProtocolError(f"SDH-2 {what}: value {v[i]!r} outside the physical {kind} range [{lo:g}, {hi:g}]")
+    return v
+
+
+def _duration(values, what: str) -> float:
+    if len(values) < 1:
+        raise ProtocolError(f"SDH-2 {what}: expected a duration in seconds, got no value")
+    try:
+        d = float(values[0])
+    except ValueError:
+        raise ProtocolError(f"SDH-2 {what}: expected a duration in seconds, got {values[:3]}") from None
+    if not math.isfinite(d):
+        raise ProtocolError(f"SDH-2 {what}: non-finite duration {values[0]!r}")
+    return float(_in_range(np.array([d]), "duration", what)[0])
+
+
+def _guarded(method):
+    """Make every failure of a driver call end in a typed error, with ``stop`` sent.
+
+    Validation errors (raised before anything is sent) pass unchanged. Any other
+    exception -- a library error or a raw one from a corrupted reply -- makes sure a
+    ``stop`` went out during the call (when the link is alive) and leaves as a
+    :class:`~touchloc.errors.TouchlocError`; raw exceptions become :class:`ProtocolError`.
+    """
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if self._depth:
+            return method(self, *args, **kwargs)
+        self._depth += 1
+        stops0 = self.stops_sent
+        try:
+            return method(self, *args, **kwargs)
+        except (ValidationError, JointLimitError):
+            raise
+        except HardwareError:
+            if self.stops_sent == stops0:
+                self._fault(None)
+            raise
+        except Exception as exc:  # a raw error from a corrupted reply: never let it escape
+            if self.stops_sent == stops0:
+                self._fault(None)
+            raise ProtocolError(f"SDH-2 {method.__name__}: unusable reply ({type(exc).__name__}: {exc})") from exc
+        finally:
+            self._depth -= 1
+
+    return wrapper
 
 
 class SDHFirmwareError(FirmwareError):
@@ -195,8 +266,11 @@ class SDH2:
     N_AXES = N_AXES
 
     def __init__(self, port, *, timeout: float = 1.0, connect: bool = True, stop_on_fault: bool = True):
-        if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+        timeout = as_timeout(timeout, "timeout")
+        if timeout <= 0:
             raise ValidationError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        self._depth = 0
+        self.stops_sent = 0
         self.link: Link = as_link(port)
         self.timeout = float(timeout)
         self.stop_on_fault = bool(stop_on_fault)
@@ -225,6 +299,7 @@ class SDH2:
         return cls(CANLink(bus, tx_id=tx_id, rx_id=rx_id), **kwargs)
 
     # -- low level -------------------------------------------------------------------
+    @_guarded
     def connect(self) -> str:
         """Opening handshake: end any half-sent command, drain input, ask ``ver``.
 
@@ -258,16 +333,17 @@ class SDH2:
                                       + (f" (partial reply {partial[:40]!r})" if partial else ""))
             self._lines.feed(self.link.read_some(min(left, 0.1)))
 
-    def _fault(self, exc: HardwareError) -> HardwareError:
-        """Send ``stop`` (best effort) and return ``exc`` for raising."""
+    def _fault(self, exc: HardwareError | None) -> HardwareError | None:
+        """Send ``stop`` (best effort, when the link is alive) and return ``exc`` for raising."""
         if self.stop_on_fault:
             try:
                 self._write(b"stop\r\n")
                 self.stops_sent += 1
-            except HardwareError:
+            except Exception:  # a dead link: nothing can be sent
                 pass
         return exc
 
+    @_guarded
     def command(self, cmd: str, *, timeout: float | None = None):
         """Send one ASCII command and return its reply as ``(name, index, values)``.
 
@@ -291,7 +367,7 @@ class SDH2:
         if m is None:
             raise ValidationError(f"command must start with a lower-case name like 'p' or 'p(3)', got {cmd!r}")
         want = m.group(1).upper()
-        deadline = time.monotonic() + (self.timeout if timeout is None else float(timeout))
+        deadline = time.monotonic() + (self.timeout if timeout is None else as_timeout(timeout))
         try:
             self._write(cmd.encode("ascii") + b"\r\n")
             while True:
@@ -304,11 +380,15 @@ class SDH2:
         except HardwareError as exc:
             self._fault(exc)
             raise
+        except Exception as exc:  # a raw error (transport, decoding): stop, then a typed error
+            self._fault(None)
+            raise ProtocolError(f"SDH-2 {cmd[:20]!r}: {type(exc).__name__}: {exc}") from exc
 
     def _get_values(self, cmd: str, n: int) -> np.ndarray:
         _, _, values = self.command(cmd)
         try:
-            return _floats(values, n, cmd)
+            v = _floats(values, n, cmd)
+            return _in_range(v, _KIND[cmd], cmd) if cmd in _KIND else v
         except ProtocolError as exc:
             raise self._fault(exc) from None
 
@@ -317,7 +397,10 @@ class SDH2:
         return ",".join(values)
 
     def _check_vector(self, values, name: str, *, unit: str) -> np.ndarray:
-        a = np.asarray(values, dtype=np.float64).reshape(-1) if np.ndim(values) else None
+        try:
+            a = np.asarray(values, dtype=np.float64).reshape(-1) if np.ndim(values) else None
+        except (TypeError, ValueError, OverflowError):
+            a = None
         if a is None or a.shape != (N_AXES,) or not np.all(np.isfinite(a)):
             raise ValidationError(f"{name} must be {N_AXES} finite values in {unit}, got {values!r}")
         return a
@@ -327,17 +410,22 @@ class SDH2:
         return ",".join(f"{v:.3f}" for v in deg)
 
     # -- identification ---------------------------------------------------------------
+    @_guarded
     def firmware_version(self) -> str:
         """Firmware release, e.g. ``"0.0.2.15"``."""
         return self._get_text("ver")
 
+    @_guarded
     def identification(self) -> Identification:
         """Firmware, dates, hand id, serial number, SoC and number of axes."""
         n = self._get_text("numaxis")
         try:
-            num = int(float(n))
+            f = float(n)
         except ValueError:
-            raise self._fault(ProtocolError(f"SDH-2 numaxis: expected an integer, got {n!r}")) from None
+            f = float("nan")
+        if not (math.isfinite(f) and f == int(f) and 1 <= f <= MAX_AXES):
+            raise self._fault(ProtocolError(f"SDH-2 numaxis: expected an integer 1..{MAX_AXES}, got {n!r}"))
+        num = int(f)
         return Identification(self._get_text("ver"), self._get_text("ver_date"), self._get_text("id"),
                               self._get_text("sn"), self._get_text("soc"), self._get_text("soc_date"), num)
 
@@ -362,10 +450,12 @@ class SDH2:
                 f"[{math.degrees(self._lo[i]):.1f}, {math.degrees(self._hi[i]):.1f}] deg; nothing was sent")
         return a
 
+    @_guarded
     def target_angles(self) -> np.ndarray:
         """(7,) float: the current target angles (rad)."""
         return np.radians(self._get_values("p", N_AXES))
 
+    @_guarded
     def set_target_angles(self, angles) -> np.ndarray:
         """Set all 7 target angles (rad) without moving; returns the targets the hand echoed."""
         a = self.check_angles(angles)
@@ -374,24 +464,29 @@ class SDH2:
 
     def _parse(self, values, what):
         try:
-            return _floats(values, N_AXES, what)
+            v = _floats(values, N_AXES, what)
+            return _in_range(v, _KIND[what], what) if what in _KIND else v
         except ProtocolError as exc:
             raise self._fault(exc) from None
 
+    @_guarded
     def actual_angles(self) -> np.ndarray:
         """(7,) float: measured joint angles (rad)."""
         return np.radians(self._get_values("pos", N_AXES))
 
+    @_guarded
     def set_target_get_actual(self, angles) -> np.ndarray:
         """``tpap``: set the target angles (rad) and read the actual angles (rad) at once."""
         a = self.check_angles(angles)
         _, _, values = self.command("tpap=" + self._fmt(np.degrees(a)))
         return np.radians(self._parse(values, "tpap"))
 
+    @_guarded
     def target_velocities(self) -> np.ndarray:
         """(7,) float: target velocities (rad/s)."""
         return np.radians(self._get_values("v", N_AXES))
 
+    @_guarded
     def set_target_velocities(self, velocities) -> np.ndarray:
         """Set the target velocities (rad/s, each within ``velocity_limits``)."""
         v = self._check_vector(velocities, "velocities", unit="rad/s")
@@ -402,6 +497,7 @@ class SDH2:
         _, _, values = self.command("v=" + self._fmt(np.degrees(v)))
         return np.radians(self._parse(values, "v"))
 
+    @_guarded
     def set_velocities_get_actual(self, velocities) -> np.ndarray:
         """``tvav``: set target velocities (rad/s) and read the actual ones (rad/s)."""
         v = self._check_vector(velocities, "velocities", unit="rad/s")
@@ -411,18 +507,22 @@ class SDH2:
         _, _, values = self.command("tvav=" + self._fmt(np.degrees(v)))
         return np.radians(self._parse(values, "tvav"))
 
+    @_guarded
     def actual_velocities(self) -> np.ndarray:
         """(7,) float: measured velocities (rad/s)."""
         return np.radians(self._get_values("vel", N_AXES))
 
+    @_guarded
     def reference_velocities(self) -> np.ndarray:
         """(7,) float: reference velocities of the controller (rad/s)."""
         return np.radians(self._get_values("rvel", N_AXES))
 
+    @_guarded
     def accelerations(self) -> np.ndarray:
         """(7,) float: target accelerations (rad/s^2)."""
         return np.radians(self._get_values("a", N_AXES))
 
+    @_guarded
     def set_accelerations(self, accelerations) -> np.ndarray:
         """Set the target accelerations (rad/s^2, each within ``acceleration_limits``)."""
         a = self._check_vector(accelerations, "accelerations", unit="rad/s^2")
@@ -433,6 +533,7 @@ class SDH2:
         return np.radians(self._parse(values, "a"))
 
     # -- motion -----------------------------------------------------------------------
+    @_guarded
     def move(self, angles=None, *, wait: bool = False, timeout: float | None = None) -> float:
         """Start a synchronised move to the targets (optionally set first); returns its duration (s).
 
@@ -446,25 +547,30 @@ class SDH2:
             When waiting: give up (stop, raise :class:`HardwareTimeout`) after this many
             seconds (default: twice the expected duration plus the reply timeout).
         """
+        if timeout is not None:
+            timeout = as_timeout(timeout)
         if angles is not None:
             self.set_target_angles(angles)
         _, _, values = self.command("m")
-        try:
-            duration = float(values[0]) if len(values) == 1 else float("nan")
-        except ValueError:
-            duration = float("nan")
-        if not math.isfinite(duration) or duration < 0:
+        if len(values) != 1:
             raise self._fault(ProtocolError(f"SDH-2 m: expected one duration in seconds, got {values}"))
+        try:
+            duration = _duration(values, "m")
+        except ProtocolError as exc:
+            raise self._fault(exc) from None
         if wait:
             self.wait_until_idle(timeout if timeout is not None else 2 * duration + self.timeout)
         return duration
 
+    @_guarded
     def wait_until_idle(self, timeout: float, poll: float = 0.005) -> np.ndarray:
         """Poll ``state`` until no axis is positioning; returns the final states.
 
         Raises :class:`HardwareTimeout` (after sending ``stop``) when still moving after
         ``timeout`` seconds.
         """
+        timeout = as_timeout(timeout)
+        poll = as_timeout(poll, "poll")
         end = time.monotonic() + timeout
         while True:
             st = self.state()
@@ -474,10 +580,12 @@ class SDH2:
                 raise self._fault(HardwareTimeout(f"SDH-2 axes still positioning after {timeout:.2f} s: states {st.tolist()}"))
             time.sleep(poll)
 
+    @_guarded
     def stop(self) -> None:
         """Stop the current ``m`` move (grip moves are not stopped by the firmware)."""
         self.command("stop")
 
+    @_guarded
     def state(self) -> np.ndarray:
         """(7,) int: per-axis :class:`AxisState` codes."""
         v = self._get_values("state", N_AXES)
@@ -485,22 +593,29 @@ class SDH2:
             raise self._fault(ProtocolError(f"SDH-2 state: expected integers 0..7, got {v.tolist()}"))
         return v.astype(np.int64)
 
+    @_guarded
     def expected_duration(self) -> float:
         """Predicted duration (s) of a move to the current targets (``get_duration``)."""
         _, _, values = self.command("get_duration")
         try:
-            return float(values[0])
-        except (IndexError, ValueError):
-            raise self._fault(ProtocolError(f"SDH-2 get_duration: expected one number, got {values}")) from None
+            return _duration(values, "get_duration")
+        except ProtocolError as exc:
+            raise self._fault(exc) from None
 
+    @_guarded
     def power(self, on=None) -> np.ndarray:
         """Read (``on=None``) or set the axis power: a bool for all axes or 7 bools."""
         if on is None:
             return self._get_values("power", N_AXES).astype(bool)
-        flags = np.broadcast_to(np.asarray(on, dtype=bool), (N_AXES,))
+        flags = np.asarray(on, dtype=object)
+        if flags.shape not in ((), (N_AXES,)) or not all(isinstance(f, (bool, np.bool_, int, np.integer))
+                                                         and f in (0, 1) for f in flags.reshape(-1)):
+            raise ValidationError(f"power must be a bool or {N_AXES} bools, got {on!r}")
+        flags = np.broadcast_to(flags.astype(bool), (N_AXES,))
         _, _, values = self.command("power=" + ",".join("1" if f else "0" for f in flags))
         return self._parse(values, "power").astype(bool)
 
+    @_guarded
     def grip(self, preset, close: float, velocity: float = 40.0, *, wait: bool = False) -> float:
         """Run a preset grasp: ``selgrip``, then ``vp=0`` and ``grip=close,velocity``.
 
@@ -519,33 +634,46 @@ class SDH2:
             p = GripPreset(int(preset))
         except (ValueError, TypeError):
             raise ValidationError(f"preset must be 0..3 (centrical, parallel, cylindrical, spherical), got {preset!r}") from None
-        if not (0.0 <= float(close) <= 1.0):
-            raise ValidationError(f"close must lie in [0, 1], got {close}")
-        if not (0.0 < float(velocity) <= 100.0):
-            raise ValidationError(f"velocity must lie in (0, 100], got {velocity}")
+        from .._validate import as_float, as_probability
+
+        close = as_probability(close, "close")
+        velocity = as_float(velocity, "velocity", low=0.0, low_open=True, high=100.0)
         self.command(f"selgrip={int(p)}")
         self.command("vp=0")
         _, _, values = self.command(f"grip={float(close):.3f},{float(velocity):.3f}")
         try:
-            duration = float(values[0])
-        except (IndexError, ValueError):
-            raise self._fault(ProtocolError(f"SDH-2 grip: expected the duration first, got {values}")) from None
+            duration = _duration(values, "grip")
+        except ProtocolError as exc:
+            raise self._fault(exc) from None
         if wait:
             time.sleep(max(0.0, duration))
         return duration
 
+    @_guarded
     def temperatures(self) -> dict:
         """Temperatures (deg C): ``{"axes": (7,), "fpga": float, "pcb": float}``."""
         t = self._get_values("temp", 9)
         return {"axes": t[:7], "fpga": float(t[7]), "pcb": float(t[8])}
 
+    @_guarded
     def controller(self, mode: int | None = None) -> int:
         """Read or set the controller type (0 pose, 1 velocity, 2 velocity + acceleration)."""
         if mode is None:
-            return int(self._get_values("con", 1)[0])
-        if mode not in (0, 1, 2):
+            return self._controller_mode(self._get_values("con", 1))
+        if isinstance(mode, bool) or mode not in (0, 1, 2):
             raise ValidationError(f"controller mode must be 0 (pose), 1 (velocity) or 2, got {mode!r}")
-        return int(float(self.command(f"con={mode}")[2][0]))
+        return self._controller_mode(self._parse_n(self.command(f"con={int(mode)}")[2], 1, "con"))
+
+    def _parse_n(self, values, n, what):
+        try:
+            return _floats(values, n, what)
+        except ProtocolError as exc:
+            raise self._fault(exc) from None
+
+    def _controller_mode(self, v) -> int:
+        if v[0] not in (0.0, 1.0, 2.0):
+            raise self._fault(ProtocolError(f"SDH-2 con: expected a controller mode 0, 1 or 2, got {v[0]!r}"))
+        return int(v[0])
 
     def close(self) -> None:
         """Close the transport (the port is the caller's, but closing it here is allowed)."""
