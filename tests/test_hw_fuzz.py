@@ -210,3 +210,78 @@ def test_drivers_on_a_noisy_wire_end_in_library_errors():
                 outcomes["error"] += 1
         port.close()
     assert outcomes["ok"] > 0 and outcomes["error"] > 0, outcomes
+
+
+def test_sdh2_driver_over_20000_corrupted_replies_stops_and_raises_typed():
+    """Every failed call over the real emulator's corrupted replies: library error + stop."""
+    from touchloc.hardware.emulator._corrupt import fuzz_sdh2
+
+    r = fuzz_sdh2(20_000, rate=0.5, seed=12)
+    assert r["calls"] == 20_000
+    assert r["raw"] == 0, r["raw_examples"]
+    assert r["missing_stop"] == 0
+    # the corruption reached every kind, and both outcomes occurred often
+    assert all(v > 100 for v in r["corruptions"].values()), r["corruptions"]
+    assert r["ok"] > 2000 and r["typed"] > 2000
+    assert {"ProtocolError", "HardwareTimeout", "SDHFirmwareError"} <= set(r["errors"])
+
+
+@pytest.mark.parametrize("reply, call", [
+    (b"CON=nan\r\n", lambda h: h.controller()),
+    (b"CON\r\n", lambda h: h.controller()),
+    (b"CON=7\r\n", lambda h: h.controller()),
+    (b"CON=x\r\n", lambda h: h.controller(1)),
+    (b"NUMAXIS=inf\r\n", lambda h: h.identification()),
+    (b"GRIP=1e9\r\n", lambda h: h.grip(0, 0.5, wait=True)),
+    (b"GET_DURATION=nan\r\n", lambda h: h.expected_duration()),
+    (b"M=-1\r\n", lambda h: h.move()),
+    (b"POS=0,0,0,0,0,0,1e9\r\n", lambda h: h.actual_angles()),
+    (b"VEL=0,0,0,0,0,0,-5e4\r\n", lambda h: h.actual_velocities()),
+])
+def test_reply_outside_physical_range_is_protocol_error_with_stop(reply, call):
+    from touchloc.errors import ProtocolError
+    from touchloc.hardware import SDH2
+    from touchloc.hardware.emulator import SDH2Emulator
+    from touchloc.hardware.emulator._corrupt import CorruptingLink
+
+    class Fixed(SDH2Emulator):
+        def feed(self, data):
+            out = super().feed(data)
+            name = reply.split(b"=")[0].strip(b"\r\n")
+            return reply if out.upper().startswith(name) else out
+
+    link = CorruptingLink(Fixed(), rate=0.0)
+    hand = SDH2(link, timeout=0.05, connect=False)
+    with pytest.raises(ProtocolError):
+        call(hand)
+    assert link.stops >= 1
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0, "1"])
+def test_sdh2_timeouts_are_validated(bad):
+    from touchloc.errors import ValidationError
+    from touchloc.hardware import SDH2
+    from touchloc.hardware.emulator import SDH2Emulator
+    from touchloc.hardware.emulator._corrupt import CorruptingLink
+
+    hand = SDH2(CorruptingLink(SDH2Emulator(), rate=0.0), timeout=0.05)
+    with pytest.raises(ValidationError):
+        hand.command("pos", timeout=bad)
+    with pytest.raises(ValidationError):
+        hand.wait_until_idle(bad)
+    with pytest.raises(ValidationError):
+        SDH2(CorruptingLink(SDH2Emulator(), rate=0.0), timeout=bad)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0])
+def test_dsacon_wait_timeout_is_validated(bad):
+    from touchloc.errors import ValidationError
+    from touchloc.hardware import DSACON32m
+    from touchloc.hardware.emulator import DSACON32mEmulator
+    from touchloc.hardware.emulator._corrupt import CorruptingLink
+
+    dev = DSACON32m(CorruptingLink(DSACON32mEmulator(), rate=0.0), timeout=0.05)
+    with pytest.raises(ValidationError):
+        dev.read_frame(timeout=bad)
+    with pytest.raises(ValidationError):
+        dev.threshold("0")
