@@ -9,7 +9,8 @@ from .dsacon import (ControllerInfo, DSACON32m, DSAFirmwareError, MatrixInfo, Pa
 from .executor import GuardedTouchExecutor, HandWorld, TouchAborted, TouchPlan
 from .kinematics import DEFAULT_PADS, FINGER_AXES, PadLayout, SDH2Kinematics
 from .sdh2 import SDH2, AxisState, GripPreset, Identification, SDHFirmwareError
-from .session import SessionLog, SessionRecord, read_session, replay, session_contacts
+from .session import (SessionLog, SessionRecord, TornRecordWarning, check_session, read_session,
+                      repair_session, replay, session_contacts)
 from .tactile import Blob, blobs_to_contacts, find_blobs, frame_to_contacts
 from .dnf_features import blob_normals, frame_normal_angles, rotation_plane_angles  # noqa: F401 (DNF input)
 
@@ -24,4 +25,5 @@ __all__ = [
     # touches and their log
     "GuardedTouchExecutor", "TouchPlan", "TouchAborted", "HandWorld",
     "SessionLog", "SessionRecord", "read_session", "session_contacts", "replay",
+    "check_session", "repair_session", "TornRecordWarning",
 ]

@@ -2,8 +2,13 @@
 
 The log is a JSON-lines file. Each touch is one line written with a single ``write``,
 flushed and fsync'ed before the executor returns, so that a crash (of the program or the
-machine) loses at most the touch in progress. A truncated last line (a crash mid-write) is
-ignored with a warning when reading.
+machine) loses at most the touch in progress.
+
+A crash mid-write leaves a torn line (a fragment of a record). Reading skips every torn line
+and reports it (a :class:`TornRecordWarning` naming the lines, and ``torn`` in
+:func:`check_session`); a log opened for appending after a crash starts on a fresh line, so
+the fragment never merges with the next record; :func:`repair_session` drops the fragments
+and keeps every complete record.
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
 
-__all__ = ["SessionLog", "SessionRecord", "read_session", "session_contacts", "replay"]
+__all__ = ["SessionLog", "SessionRecord", "SessionCheck", "TornRecordWarning", "read_session",
+           "check_session", "repair_session", "session_contacts", "replay"]
 
 FORMAT = "touchloc-session/1"
 
@@ -76,6 +82,17 @@ class SessionLog:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "a", encoding="utf-8")
         self.count = 0
+        # a crash mid-write leaves a last line without its end: start on a fresh line, so that
+        # the fragment stays a torn line of its own instead of spoiling the next record
+        if self._fh.tell() > 0:
+            with open(self.path, "rb") as fh:
+                fh.seek(-1, os.SEEK_END)
+                last = fh.read(1)
+            if last != b"\n":
+                self._fh.write("\n")
+                self._fh.flush()
+                if self.fsync:
+                    os.fsync(self._fh.fileno())
 
     def append(self, result: TouchResult, *, finger=None, angles=None, hand_pose=None, **extra) -> None:
         """Write one touch and flush it to disk."""
@@ -124,25 +141,62 @@ def _default(o):
     raise TypeError(f"cannot log {type(o).__name__}")
 
 
-def read_session(path) -> list:
-    """Records of a session log, oldest first (a truncated last line is skipped with a warning)."""
-    path = Path(path)
-    if not path.exists():
-        raise ValidationError(f"session log {path} does not exist")
-    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
-    out = []
-    for i, line in enumerate(lines):
-        if not line.strip():
+class TornRecordWarning(UserWarning):
+    """A session log held torn lines (fragments of records cut by a crash); they were skipped."""
+
+
+class SessionCheck:
+    """What :func:`check_session` found: ``records`` (list of SessionRecord) and ``torn``
+    (1-based line numbers of the fragments that were skipped)."""
+
+    __slots__ = ("records", "torn")
+
+    def __init__(self, records, torn):
+        self.records = records
+        self.torn = torn
+
+    def __repr__(self):
+        return f"SessionCheck({len(self.records)} records, torn lines {self.torn})"
+
+
+_START = b'{"format":'
+
+
+def _parse_line(raw: bytes):
+    """A record dict from one line, or None when the line is a fragment."""
+    try:
+        rec = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return rec if isinstance(rec, dict) else None
+
+
+def _split(path: Path):
+    """(records as (line number, dict), torn line numbers) of a log file."""
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    recs, torn = [], []
+    for i, raw in enumerate(lines):
+        if not raw.strip():
             continue
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            if i == len(lines) - 1 and not line.endswith("\n"):
-                warnings.warn(f"{path}: last record is truncated (a crash while writing?); skipped", stacklevel=2)
-                continue
-            raise ValidationError(f"{path}, line {i + 1}: not a session record") from None
-        if rec.get("format") != FORMAT:
-            raise ValidationError(f"{path}, line {i + 1}: format {rec.get('format')!r}, expected {FORMAT!r}")
+        rec = _parse_line(raw)  # a whole record cut just before its line end still counts
+        if rec is None:
+            # a fragment followed, on the same line, by a whole record (a file appended to
+            # without a fresh line by an older writer): keep the record
+            j = raw.rfind(_START)
+            tail = _parse_line(raw[j:]) if j > 0 and i < len(lines) - 1 else None
+            torn.append(i + 1)
+            if tail is not None:
+                recs.append((i + 1, tail))
+            continue
+        recs.append((i + 1, rec))
+    return recs, torn
+
+
+def _record(path, lineno, rec) -> SessionRecord:
+    if rec.get("format") != FORMAT:
+        raise ValidationError(f"{path}, line {lineno}: format {rec.get('format')!r}, expected {FORMAT!r}")
+    try:
         t = rec["touch"]
         touch = GuardedTouch(t["origin"], t["direction"], t["max_travel"], t.get("probe_radius", 0.0),
                              name=t.get("name", ""))
@@ -150,11 +204,74 @@ def read_session(path) -> list:
         if rec["hit"]:
             contact = Contacts(rec["points"], rec["normals"])
         res = TouchResult(touch, rec["travel"], contact)
-        out.append(SessionRecord(res, rec.get("finger"),
-                                 None if rec.get("angles") is None else np.array(rec["angles"]),
-                                 None if rec.get("hand_pose") is None else np.array(rec["hand_pose"]),
-                                 rec.get("time", 0.0), rec.get("extra")))
-    return out
+        return SessionRecord(res, rec.get("finger"),
+                             None if rec.get("angles") is None else np.array(rec["angles"], dtype=np.float64),
+                             None if rec.get("hand_pose") is None else np.array(rec["hand_pose"], dtype=np.float64),
+                             rec.get("time", 0.0), rec.get("extra"))
+    except ValidationError as exc:
+        raise ValidationError(f"{path}, line {lineno}: {exc}") from None
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ValidationError(f"{path}, line {lineno}: not a complete session record "
+                              f"({type(exc).__name__}: {exc})") from None
+
+
+def check_session(path) -> SessionCheck:
+    """Read a session log and say which lines were torn (see :class:`SessionCheck`).
+
+    Raises :class:`ValidationError` for a missing file, or a complete line that is not a
+    session record (another file, another format).
+    """
+    from .._validate import as_path
+
+    path = as_path(path, "session log")
+    recs, torn = _split(path)
+    return SessionCheck([_record(path, i, r) for i, r in recs], torn)
+
+
+def read_session(path) -> list:
+    """Records of a session log, oldest first.
+
+    Torn lines (record fragments left by a crash mid-write, anywhere in the file) are
+    skipped with a :class:`TornRecordWarning` naming them; every complete record is kept.
+    """
+    chk = check_session(path)
+    if chk.torn:
+        warnings.warn(f"{path}: skipped torn (truncated) line(s) {chk.torn[:10]}{' ...' if len(chk.torn) > 10 else ''} "
+                      "(a crash while writing?); repair_session() drops them", TornRecordWarning, stacklevel=2)
+    return chk.records
+
+
+def repair_session(path) -> int:
+    """Drop the torn lines of a session log in place, keeping every complete record.
+
+    The repaired file is written beside the log, fsync'ed and renamed over it, so a crash
+    during the repair leaves either the old or the new file. Returns the number of torn
+    lines dropped (0: the file was not touched).
+    """
+    from .._validate import as_path
+
+    path = as_path(path, "session log")
+    recs, torn = _split(path)
+    if not torn:
+        return 0
+    for i, r in recs:
+        _record(path, i, r)  # refuse to rewrite a file that is not a session log
+    tmp = path.with_name(path.name + ".repair")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        for _, r in recs:
+            fh.write(json.dumps(r, separators=(",", ":")) + "\n")
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    try:
+        dfd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+    except OSError:  # pragma: no cover - platforms without directory fsync
+        pass
+    return len(torn)
 
 
 def session_contacts(path_or_records) -> Contacts:
