@@ -15,7 +15,9 @@ def as_rng(rng=None) -> np.random.Generator:
     """Normalise ``rng`` (None, int seed or Generator) to a numpy Generator."""
     if isinstance(rng, np.random.Generator):
         return rng
-    if rng is None or isinstance(rng, (int, np.integer)):
+    if rng is None or isinstance(rng, (int, np.integer)) and not isinstance(rng, (bool, np.bool_)):
+        if rng is not None and rng < 0:
+            raise ValidationError(f"rng seed must be a non-negative integer, got {rng}")
         return np.random.default_rng(rng)
     if isinstance(rng, np.random.SeedSequence):
         return np.random.default_rng(rng)

@@ -6,6 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._util import as_poses, as_rng
+from .._validate import as_nonnegative_float
 from ..errors import ValidationError
 
 __all__ = ["GaussianDynamics"]
@@ -29,11 +30,10 @@ class GaussianDynamics:
     """
 
     def __init__(self, sigma_met: float, sigma_ang: float, *, planar: bool = False):
-        for name, v in (("sigma_met", sigma_met), ("sigma_ang", sigma_ang)):
-            if not (np.isfinite(v) and v >= 0):
-                raise ValidationError(f"{name} must be a finite number >= 0, got {v}")
-        self.sigma_met = float(sigma_met)
-        self.sigma_ang = float(sigma_ang)
+        self.sigma_met = as_nonnegative_float(sigma_met, "sigma_met (m)")
+        self.sigma_ang = as_nonnegative_float(sigma_ang, "sigma_ang (rad)")
+        if not isinstance(planar, (bool, np.bool_)):
+            raise ValidationError(f"planar must be True or False, got {type(planar).__name__}")
         self.planar = bool(planar)
 
     def __repr__(self) -> str:

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from .._util import as_points, as_poses
+from .._validate import as_float, as_positive_float
 from ..errors import ValidationError
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
@@ -109,16 +110,23 @@ class FreeSpaceModel(FreeSpaceBase):
         E = as_points(ends, "ends")
         if S.shape != E.shape:
             raise ValidationError(f"starts {S.shape} and ends {E.shape} must match")
-        r = np.broadcast_to(np.asarray(radius, dtype=float), (len(S),)).copy()
+        try:
+            r = np.broadcast_to(np.asarray(radius, dtype=float), (len(S),)).copy()
+        except (TypeError, ValueError, OverflowError):
+            raise ValidationError(f"radius must be a number or {len(S)} numbers >= 0 (m), got {radius!r}") from None
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ValidationError("radius must be finite and >= 0")
-        if not (np.isfinite(sigma) and sigma > 0):
-            raise ValidationError(f"sigma must be > 0 (m), got {sigma}")
-        if not (0 <= eps < 1):
-            raise ValidationError(f"eps must be in [0, 1), got {eps}")
+        sigma = as_positive_float(sigma, "sigma (m)")
+        eps = as_float(eps, "eps", low=0.0, high=1.0, high_open=True)
+        if spacing is not None:
+            spacing = as_positive_float(spacing, "spacing (m)")
         self.obj, self.starts, self.ends, self.radius = obj, S, E, r
         self.sigma, self.eps = float(sigma), float(eps)
         self.spacing = float(spacing) if spacing else float(sigma)
+        n_total = float(np.sum(np.linalg.norm(E - S, axis=1) / self.spacing)) + 2 * len(S)
+        if not n_total <= 10_000_000:
+            raise ValidationError(f"spacing {self.spacing:g} m would sample {n_total:.3g} points along the swept "
+                                  "segments (at most 1e7 fit in memory); use a coarser spacing or sigma")
         # sample points along every segment (fixed in the world frame)
         pts, owner = [], []
         for j in range(len(S)):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._util import as_poses
+from .._validate import as_count, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 from . import _kernels as K
 from .base import MeasurementModel, check_temperature
@@ -25,6 +26,9 @@ def contacts_in_object_frame(poses: np.ndarray, contacts: Contacts):
 
     Returns points (N, K, 3) and normals (N, K, 3) or None: R^T (p - t) and R^T n.
     """
+    if not isinstance(contacts, Contacts):
+        raise ValidationError(f"contacts must be a Contacts, got {type(contacts).__name__}")
+    poses = as_poses(poses)
     R = poses[:, :3, :3]
     t = poses[:, :3, 3]
     # row-vector form: R^T (p - t) for every pose and contact is (p - t) @ R
@@ -81,20 +85,21 @@ class ProximityModel(MeasurementModel):
                  grid_margin: float | None = None, grid_normals: int = 64):
         if not isinstance(obj, MeshObject):
             raise ValidationError(f"obj must be a MeshObject, got {type(obj).__name__}")
-        if not (np.isfinite(sigma_pos) and sigma_pos > 0):
-            raise ValidationError(f"sigma_pos must be a positive finite number (m), got {sigma_pos}")
-        if sigma_nor is not None and not (np.isfinite(sigma_nor) and sigma_nor > 0):
-            raise ValidationError(f"sigma_nor must be a positive finite number or None, got {sigma_nor}")
-        if method not in METHODS:
+        sigma_pos = as_positive_float(sigma_pos, "sigma_pos (m)")
+        if sigma_nor is not None:
+            sigma_nor = as_positive_float(sigma_nor, "sigma_nor")
+        if not isinstance(method, str) or method not in METHODS:
             raise ValidationError(f"method must be one of {METHODS}, got {method!r}")
         self.obj = obj
         self.sigma_pos = float(sigma_pos)
         self.sigma_nor = None if sigma_nor is None else float(sigma_nor)
         self.method = method
         ext = float(obj.extents.max())
-        self.grid_cell = float(grid_cell) if grid_cell else ext / 24.0
-        self.grid_margin = float(grid_margin) if grid_margin is not None else 0.25 * ext
-        self.grid_normals = int(grid_normals)
+        self.grid_cell = ext / 24.0 if grid_cell is None else as_positive_float(grid_cell, "grid_cell (m)")
+        self.grid_margin = (0.25 * ext if grid_margin is None
+                            else as_nonnegative_float(grid_margin, "grid_margin (m)"))
+        self.grid_normals = as_count(grid_normals, "grid_normals", max=100_000,
+                                     why="normals sampled per grid cell family; memory grows with it")
 
     def __repr__(self) -> str:
         return (f"ProximityModel({self.obj.name!r}, sigma_pos={self.sigma_pos}, "

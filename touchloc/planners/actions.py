@@ -11,6 +11,16 @@ from ..errors import ValidationError
 __all__ = ["GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "fingers_of", "as_cost"]
 
 
+def _vec3(x) -> np.ndarray:
+    """x as a flat float64 array (an empty one when it is not numeric: the caller rejects it)."""
+    if x is None or isinstance(x, (str, bytes, dict)):
+        return np.zeros(0)
+    try:
+        return np.asarray(x, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        return np.zeros(0)
+
+
 @dataclass(frozen=True)
 class GuardedTouch:
     """Move a probe along a straight line until it touches something, or give up.
@@ -36,16 +46,16 @@ class GuardedTouch:
     name: str = field(default="", compare=False)
 
     def __post_init__(self):
-        o = np.asarray(self.origin, dtype=np.float64).reshape(-1)
-        d = np.asarray(self.direction, dtype=np.float64).reshape(-1)
+        from .._validate import as_nonnegative_float, as_positive_float
+
+        o = _vec3(self.origin)
+        d = _vec3(self.direction)
         if o.shape != (3,) or not np.all(np.isfinite(o)):
             raise ValidationError(f"GuardedTouch.origin must be 3 finite numbers, got {self.origin!r}")
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) < 1e-12:
             raise ValidationError(f"GuardedTouch.direction must be 3 finite numbers, not all zero, got {self.direction!r}")
-        if not (np.isfinite(self.max_travel) and self.max_travel > 0):
-            raise ValidationError(f"GuardedTouch.max_travel must be positive (m), got {self.max_travel}")
-        if not (np.isfinite(self.probe_radius) and self.probe_radius >= 0):
-            raise ValidationError(f"GuardedTouch.probe_radius must be >= 0 (m), got {self.probe_radius}")
+        as_positive_float(self.max_travel, "GuardedTouch.max_travel (m)")
+        as_nonnegative_float(self.probe_radius, "GuardedTouch.probe_radius (m)")
         o.flags.writeable = False
         d = d / np.linalg.norm(d)
         d.flags.writeable = False

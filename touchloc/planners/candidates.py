@@ -5,8 +5,27 @@ from __future__ import annotations
 import numpy as np
 
 from .._util import as_rng
+from .._validate import as_count, as_nonnegative_float, as_pose, as_positive_float, as_probability
 from ..errors import ValidationError
 from .actions import GuardedTouch, HandTouch
+
+#: a candidate pool larger than this is scored by every planner touch by touch: refuse it
+MAX_POOL = 100_000
+_WHY = "planners score every candidate; split a larger pool"
+
+
+def _check_obj(obj):
+    from ..models import MeshObject
+
+    if not isinstance(obj, MeshObject):
+        raise ValidationError(f"obj must be a MeshObject, got {type(obj).__name__}")
+
+
+def _check_region(region):
+    from ..belief import PoseRegion
+
+    if not isinstance(region, PoseRegion):
+        raise ValidationError(f"region must be a PoseRegion, got {type(region).__name__}")
 
 __all__ = ["world_pool", "relative_pool", "hand_pool", "CandidateGenerator"]
 
@@ -44,10 +63,13 @@ def world_pool(region, obj, n: int = 100, *, rng=None, margin: float = 0.05, top
     -------
     list of GuardedTouch
     """
-    if int(n) < 1:
-        raise ValidationError(f"n must be >= 1, got {n}")
+    _check_region(region)
+    _check_obj(obj)
+    n = as_count(n, "n", max=MAX_POOL, why=_WHY)
+    margin = as_nonnegative_float(margin, "margin (m)")
+    top_fraction = as_probability(top_fraction, "top_fraction")
+    probe_radius = as_nonnegative_float(probe_radius, "probe_radius (m)")
     rng = as_rng(rng)
-    n = int(n)
     c, h = region.center, region.half_extent
     r_obj = obj.radius
     R = float(np.linalg.norm(h)) + r_obj + margin
@@ -101,8 +123,18 @@ def relative_pool(pose, obj, n: int = 50, *, rng=None, standoff: float = 0.03, d
     -------
     list of GuardedTouch
     """
+    T = as_pose(pose)
+    _check_obj(obj)
+    n = as_count(n, "n", max=MAX_POOL, why=_WHY)
+    standoff = as_nonnegative_float(standoff, "standoff (m)")
+    if depth is not None:
+        depth = as_positive_float(depth, "depth (m)")
+    if min_normal_z is not None:
+        from .._validate import as_float
+
+        min_normal_z = as_float(min_normal_z, "min_normal_z", low=-1.0, high=1.0)
+    probe_radius = as_nonnegative_float(probe_radius, "probe_radius (m)")
     rng = as_rng(rng)
-    T = np.asarray(pose, dtype=float).reshape(4, 4)
     depth = obj.radius if depth is None else float(depth)
     out = []
     tries = 0
@@ -133,10 +165,15 @@ def hand_pool(pose, obj, n: int = 20, *, n_fingers: int = 3, rng=None, standoff:
     -------
     list of HandTouch
     """
-    if int(n_fingers) < 1:
-        raise ValidationError(f"n_fingers must be >= 1, got {n_fingers}")
+    T = as_pose(pose)
+    _check_obj(obj)
+    n = as_count(n, "n", max=MAX_POOL, why=_WHY)
+    n_fingers = as_count(n_fingers, "n_fingers", max=16, why="a hand has a few fingers")
+    standoff = as_nonnegative_float(standoff, "standoff (m)")
+    probe_radius = as_nonnegative_float(probe_radius, "probe_radius (m)")
+    if not isinstance(planar, (bool, np.bool_)):
+        raise ValidationError(f"planar must be True or False, got {type(planar).__name__}")
     rng = as_rng(rng)
-    T = np.asarray(pose, dtype=float).reshape(4, 4)
     ctr_obj = 0.5 * (obj.bounds[0] + obj.bounds[1])
     ctr = T[:3, :3] @ ctr_obj + T[:3, 3]
     R0 = obj.radius + standoff
