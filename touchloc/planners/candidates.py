@@ -215,6 +215,14 @@ class CandidateGenerator:
 
     def __init__(self, region, obj, *, n_world: int = 60, n_relative: int = 40, n_hands: int = 0,
                  n_fingers: int = 3, seed: int = 0, probe_radius: float = 0.0, standoff: float = 0.03):
+        _check_region(region)
+        _check_obj(obj)
+        n_world = as_count(n_world, "n_world", min=0, max=MAX_POOL, why=_WHY)
+        n_relative = as_count(n_relative, "n_relative", min=0, max=MAX_POOL, why=_WHY)
+        n_hands = as_count(n_hands, "n_hands", min=0, max=MAX_POOL, why=_WHY)
+        n_fingers = as_count(n_fingers, "n_fingers", max=16, why="a hand has a few fingers")
+        probe_radius = as_nonnegative_float(probe_radius, "probe_radius (m)")
+        standoff = as_nonnegative_float(standoff, "standoff (m)")
         self.region, self.obj = region, obj
         self.planar = region.rotation == "yaw" and region.half_extent[2] == 0
         self.world = world_pool(region, obj, n_world, rng=seed, probe_radius=probe_radius) if n_world else []
