@@ -1,6 +1,7 @@
 """Unit tests of the boundary validators in touchloc._validate."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -116,3 +117,18 @@ def test_path(tmp_path):
         as_path(tmp_path)
     assert as_path(tmp_path, kind="dir") == tmp_path
     assert issubclass(ValidationError, TouchlocError)
+
+
+def test_one_step_planner_refuses_a_degenerate_belief(objects):
+    from touchloc.belief import ParticleBelief, PoseRegion
+    from touchloc.errors import BeliefDegenerateError
+    from touchloc.models import ProximityModel
+    from touchloc.planners import GuardedTouch, OneStepPlanner
+
+    obj = objects["can"]
+    poses = PoseRegion.box((0, 0, 0), 0.01, "yaw").sample(50, rng=0)
+    belief = ParticleBelief(poses)
+    belief.log_weights = np.full(50, -1e5)   # unnormalised log-weights edited in place: exp underflows to 0
+    touch = GuardedTouch((0, 0, 0.3), (0, 0, -1), 0.5)
+    with pytest.raises(BeliefDegenerateError):
+        OneStepPlanner(ProximityModel(obj, 0.002, 0.1), max_particles=10).plan(belief, [touch], rng=0)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
-from ..errors import PlanningError, ValidationError
+from ..errors import BeliefDegenerateError, PlanningError, ValidationError
 from ..models import MeshObject
 from .actions import as_cost
 from .simulate import Outcomes, flatten_actions, simulate
@@ -103,7 +103,14 @@ class _Context:
         t0 = time.perf_counter()
         self.fingers, self.owner = flatten_actions(candidates)
         self.candidates = list(candidates)
-        w = belief.weights
+        with np.errstate(all="ignore"):
+            w = np.asarray(belief.weights, dtype=np.float64)
+            total = float(w.sum()) if np.all(np.isfinite(w)) and np.all(w >= 0) else float("nan")
+        if not (np.isfinite(total) and total > 0):
+            raise BeliefDegenerateError(
+                "the belief's weights are not finite or all underflowed to 0; plan from a belief with "
+                "at least one finite log-weight")
+        w = w / total  # exact normalisation for rng.choice
         n = planner.max_particles
         if len(belief) > n:
             idx = np.sort(rng.choice(len(belief), size=n, p=w))
