@@ -6,6 +6,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._util import as_poses, as_rng
+from .._validate import as_count, as_probability
 from ..errors import ValidationError
 from ..models import Contacts
 from ._common import check_model, check_region, measurement, split_measurements, touch_model
@@ -69,12 +70,10 @@ class SMCFilter:
                  max_stages: int = 8, free_space=None, rho: float | None = None, rng=None, **free_kwargs):
         self.model = check_model(model)
         self.obj = self.model.obj
-        if int(n_particles) < 10:
-            raise ValidationError(f"n_particles must be >= 10, got {n_particles}")
-        if int(moves) < 0 or int(max_stages) < 1:
-            raise ValidationError(f"moves must be >= 0 and max_stages >= 1, got {moves} and {max_stages}")
-        if not 0 < ess_fraction < 1:
-            raise ValidationError(f"ess_fraction must be in (0, 1), got {ess_fraction}")
+        n_particles = as_count(n_particles, "n_particles", min=10, max=10_000_000, why="memory: 128 bytes a pose")
+        moves = as_count(moves, "moves", min=0, max=1000, why="each move is one likelihood pass over the particles")
+        max_stages = as_count(max_stages, "max_stages", max=1000, why="each stage is one likelihood pass")
+        ess_fraction = as_probability(ess_fraction, "ess_fraction", open_low=True, open_high=True)
         self.n = int(n_particles)
         self.moves, self.ess_fraction, self.max_stages = int(moves), float(ess_fraction), int(max_stages)
         self.free_space, self.free_kwargs = free_space, free_kwargs

@@ -351,12 +351,18 @@ class TouchLikelihood(MeasurementModel):
         if not isinstance(model, MeasurementModel) or getattr(model, "obj", None) is None:
             raise ValidationError(f"model must be a measurement model of an object, got {type(model).__name__}")
         free_space = RayStopModel if free_space is None else free_space
+        if not (hasattr(free_space, "default_sigma") and hasattr(free_space, "from_results")):
+            raise ValidationError("free_space must be a free-space model class with default_sigma() and "
+                                  f"from_results() (e.g. RayStopModel), got {type(free_space).__name__}")
+        if isinstance(results, (str, bytes, dict)) or not hasattr(results, "__iter__"):
+            raise ValidationError(f"results must be a list of executed touches, got {type(results).__name__}")
         self.model, self.obj, self.results = model, model.obj, list(results)
         for r in self.results:
             if not all(hasattr(r, a) for a in ("contact", "touch", "travel")):
                 raise ValidationError(f"results must be executed touches (.contact, .touch, .travel), "
                                       f"got {type(r).__name__}")
-        sigma = float(sigma_free) if sigma_free else free_space.default_sigma(model)
+        sigma = (free_space.default_sigma(model) if sigma_free is None
+                 else as_positive_float(sigma_free, "sigma_free (m)"))
         self.free = free_space.from_results(model.obj, self.results, sigma=sigma, **kwargs) if self.results else None
         hits = [r.contact for r in self.results if r.contact is not None]
         self.contacts = Contacts.concatenate(hits) if hits and use_contacts else None
