@@ -242,6 +242,13 @@ UNCLEAN = {
     "dnf.standard_datasets": "raw: objects=-inf: raw TypeError: 'float' object is not iterable",
     "dnf.load_recording": "raw: path=-inf: raw TypeError: expected str, bytes or os.PathLike object, not float",
     "dnf.save_recording": "raw: ds=-inf: raw TypeError: expected str, bytes or os.PathLike object, not NoneType",
+    # names new in belief/ (under active change elsewhere): entry validation still to add
+    "belief.symmetric_pose_error": "raw: T_true=None: raw ValueError: cannot reshape array of size 1 into shape (4,4)",
+    "belief.credible_level": "raw: T_true=complex: raw TypeError: float() argument must be a string or a real number",
+    "belief.belief_coverage": "raw: T_true=-inf: raw ValueError: cannot reshape array of size 1 into shape (4,4)",
+    "belief.save_belief": "raw: extra=bool: raw TypeError: 'bool' object is not iterable",
+    "belief.load_belief": "raw: path=-inf: raw TypeError: expected str, bytes or os.PathLike object, not float",
+    "belief.pose_to_dict": "raw: T=complex: raw TypeError: float() argument must be a string or a real number",
 }
 
 #: a valid call of these runs a whole localisation (seconds); 30 calls exceed the budget of
