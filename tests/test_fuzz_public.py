@@ -26,9 +26,21 @@ from hypothesis import strategies as st  # noqa: E402
 
 from touchloc.errors import TouchlocError  # noqa: E402
 
-MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf"]
+MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping"]
 N_EXAMPLES = 30        # hostile calls per public callable
 TIME_LIMIT = 3.0       # seconds per call: beyond it the call counts as a hang
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _in_a_scratch_directory(tmp_path_factory):
+    """Hostile calls may write files named by their arguments ("x" -> x.npz): keep them out
+    of the working tree."""
+    import os
+
+    old = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("fuzz"))
+    yield
+    os.chdir(old)
 
 
 class CallTimeout(BaseException):

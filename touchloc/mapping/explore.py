@@ -139,7 +139,29 @@ def _as_count(n, name, hi=_MAX_TOUCHES):
 
 
 def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = "variance") -> np.ndarray:
-    """(C,) expected shape information along each touch's path (see the module notes)."""
+    """(C,) expected shape information along each touch's path (see the module notes).
+
+    Parameters
+    ----------
+    smap : ShapeMap
+    touches : list of GuardedTouch (C)
+    samples : int
+        Points sampled along each path inside the map's box.
+    score : {"variance", "entropy"}
+    """
+    if not isinstance(smap, ShapeMap):
+        raise ValidationError(f"smap must be a ShapeMap, got {type(smap).__name__}")
+    if isinstance(touches, GuardedTouch):
+        touches = [touches]
+    try:
+        touches = list(touches)
+    except TypeError:
+        raise ValidationError(f"touches must be a list of GuardedTouch, got {type(touches).__name__}") from None
+    if not touches or not all(isinstance(t, GuardedTouch) for t in touches):
+        raise ValidationError("touches must be a non-empty list of GuardedTouch")
+    samples = _as_count(samples, "samples", 10_000)
+    if score not in ("variance", "entropy"):
+        raise ValidationError(f"score must be 'variance' or 'entropy', got {score!r}")
     lo, hi = smap.lo, smap.hi
     O = np.array([t.origin for t in touches])
     D = np.array([t.direction for t in touches])

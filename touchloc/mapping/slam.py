@@ -31,6 +31,7 @@ from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, logsumexp
 
 from .._util import as_rng
+from .._validate import as_float, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
@@ -40,20 +41,15 @@ __all__ = ["TactileSLAM", "MovingWorld", "transform_results"]
 
 
 def _as_pose(T, name):
-    try:
-        T = np.asarray(T, dtype=float)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{name} must be a (4, 4) rigid transform") from None
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValidationError(f"{name} must be a finite (4, 4) rigid transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise ValidationError(f"{name} must be a rigid transform (orthonormal rotation, det +1, last row 0 0 0 1)")
-    return T
+    return as_pose(T, name)
 
 
 def transform_results(results, T) -> list:
-    """TouchResults expressed in another frame: ``T`` maps their frame to the new one."""
+    """TouchResults expressed in another frame: ``T`` (4, 4) maps their frame to the new one."""
+    from .shape_map import _check_results
+
+    results = _check_results(results)
+    T = as_pose(T, "T")
     R, t = T[:3, :3], T[:3, 3]
     out = []
     for r in results:
@@ -281,11 +277,17 @@ class MovingWorld:
         self.true_pose = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose").copy()
         self.push = _pair(push, "push")
         self.planar, self.inhand = bool(planar), bool(inhand)
-        self.step = float(step)
-        a = np.asarray(axis, float).reshape(3)
+        self.step = as_float(step, "step", low=-np.pi, high=np.pi)
+        try:
+            a = np.asarray(axis, dtype=float).reshape(3)
+        except (TypeError, ValueError):
+            raise ValidationError(f"axis must be a non-zero 3-vector, got {axis!r}") from None
+        if not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
+            raise ValidationError(f"axis must be a finite non-zero 3-vector, got {axis!r}")
         self.axis = a / np.linalg.norm(a)
-        self.bias = float(bias)
-        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
+        self.bias = as_float(bias, "bias", low=-0.9, high=10.0)
+        self.noise_pos = as_float(noise_pos, "noise_pos", low=0.0, high=0.1)
+        self.noise_nor = as_float(noise_nor, "noise_nor", low=0.0, high=10.0)
         self.rng = as_rng(rng)
         self.trajectory = [self.true_pose.copy()]
         self._odo = np.eye(4)
