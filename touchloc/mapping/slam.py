@@ -61,17 +61,10 @@ def transform_results(results, T) -> list:
 
 
 def _perturb(poses, sigma_t, sigma_r, planar, rng):
-    n = len(poses)
-    dt = rng.normal(scale=sigma_t, size=(n, 3))
-    w = rng.normal(scale=sigma_r, size=(n, 3))
-    if planar:
-        dt[:, 2] = 0.0
-        w[:, :2] = 0.0
-    out = poses.copy()
-    # rotate about the object's own origin, axes in the world
-    out[:, :3, :3] = Rotation.from_rotvec(w).as_matrix() @ poses[:, :3, :3]
-    out[:, :3, 3] += dt
-    return out
+    """Random motion about each pose: the Gaussian dynamics model of the localisation side."""
+    from ..models import GaussianDynamics
+
+    return GaussianDynamics(sigma_t, sigma_r, planar=planar).sample(poses, rng=rng)
 
 
 class TactileSLAM:
