@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import html
-import json
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +93,12 @@ def plot_map(path, run, truth=None, *, title: str = "", history=None) -> Path:
             a.set_ylabel("y (mm)", fontsize=8)
             a.set_zlabel("z (mm)", fontsize=8)
             a.tick_params(labelsize=7)
+    return _finish(fig, path, title)
+
+
+def _finish(fig, path, title):
+    import matplotlib.pyplot as plt
+
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -111,44 +115,18 @@ def _equal_3d(ax, lo, hi):
     ax.set_box_aspect((1, 1, 1))
 
 
-_HTML = """<!DOCTYPE html>
-<html><head><meta charset="utf-8"><title>%(title)s</title>
-<style>body{font-family:sans-serif;margin:12px;background:#fafafa}canvas{border:1px solid #ccc;background:#fff}
-.k span{display:inline-block;margin-right:14px}</style></head>
-<body><h3>%(title)s</h3>
-<div class="k"><span>map surface, coloured by uncertainty (blue: known, yellow: unknown)</span>
-<span style="color:#999">&#9679; true surface</span><span style="color:#d22">&#9679; contacts</span>
-<span style="color:#e90">&#8212; swept paths</span></div>
-<canvas id="c" width="760" height="560"></canvas>
-<p>Drag to rotate; the view spins until you do. Units: mm. %(stats)s</p>
-<script>
-const D = %(data)s;
-const cv = document.getElementById('c'), g = cv.getContext('2d');
-let yaw = 0.6, pitch = -0.5, spin = true, drag = null;
-const ctr = D.center, sc = 0.42 * Math.min(cv.width, cv.height) / D.extent;
-function proj(p) {
-  const x = p[0] - ctr[0], y = p[1] - ctr[1], z = p[2] - ctr[2];
-  const cy = Math.cos(yaw), sy = Math.sin(yaw), cp = Math.cos(pitch), sp = Math.sin(pitch);
-  const x1 = cy * x - sy * y, y1 = sy * x + cy * y;
-  return [cv.width / 2 + sc * x1, cv.height / 2 - sc * (sp * y1 + cp * z)];
-}
-function draw() {
+_LEGEND = ('<span>map surface, coloured by uncertainty (blue: known, yellow: unknown)</span>\n'
+           '<span style="color:#999">&#9679; true surface</span><span style="color:#d22">&#9679; contacts</span>\n'
+           '<span style="color:#e90">&#8212; swept paths</span>')
+
+_DRAW = """function draw() {
   g.clearRect(0, 0, cv.width, cv.height);
   g.fillStyle = '#bbb'; for (const p of D.truth) { const q = proj(p); g.fillRect(q[0] - 1, q[1] - 1, 2, 2); }
   for (let i = 0; i < D.map.length; i++) { const q = proj(D.map[i]); g.fillStyle = D.col[i]; g.fillRect(q[0] - 1.5, q[1] - 1.5, 3, 3); }
   g.strokeStyle = 'rgba(230,150,0,0.5)'; g.lineWidth = 1;
   for (const s of D.rays) { const a = proj(s[0]), b = proj(s[1]); g.beginPath(); g.moveTo(a[0], a[1]); g.lineTo(b[0], b[1]); g.stroke(); }
   g.fillStyle = '#d22'; for (const p of D.contacts) { const q = proj(p); g.beginPath(); g.arc(q[0], q[1], 3, 0, 6.3); g.fill(); }
-}
-cv.onmousedown = e => { drag = [e.clientX, e.clientY]; spin = false; };
-window.onmouseup = () => drag = null;
-cv.onmousemove = e => { if (!drag) return; yaw += (e.clientX - drag[0]) * 0.01; pitch += (e.clientY - drag[1]) * 0.01; drag = [e.clientX, e.clientY]; draw(); };
-function tick() { if (spin) { yaw += 0.01; draw(); } requestAnimationFrame(tick); }
-draw(); tick();
-</script>
-<pre>%(table)s</pre>
-</body></html>
-"""
+}"""
 
 
 def write_map_html(path, run, truth=None, *, title: str = "Shape map from touch", stats: str = "",
@@ -177,9 +155,9 @@ def write_map_html(path, run, truth=None, *, title: str = "Shape map from touch"
     tp = truth.sample_surface(1500, rng=1)[0] if truth is not None else np.zeros((0, 3))
     data = {"map": mm(pts), "col": col, "truth": mm(tp), "contacts": mm(smap.contacts.points), "rays": rays,
             "center": mm(0.5 * (lo + hi)), "extent": float(np.max(hi - lo) * 1e3 * 1.4)}
-    path.write_text(_HTML % {"title": html.escape(title), "data": json.dumps(data), "stats": html.escape(stats),
-                             "table": html.escape(run.table())})
-    return path
+    from ..planners.viz import html_page
+
+    return html_page(path, title=title, legend=_LEGEND, data=data, draw_js=_DRAW, table=run.table(), note=stats)
 
 
 def plot_trajectory(path, estimated, true, *, obj=None, title: str = "") -> Path:
@@ -225,9 +203,4 @@ def plot_trajectory(path, estimated, true, *, obj=None, title: str = "") -> Path
     lines = ax[1].get_lines() + ax2.get_lines()
     ax[1].legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper left")
     ax[1].set_title("pose error per action")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _finish(fig, path, title)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_run", "write_html"]
+__all__ = ["plot_run", "write_html", "html_page"]
 
 
 def _touch_segments(result):
@@ -88,16 +88,14 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
     return path
 
 
-_HTML = """<!DOCTYPE html>
+_PAGE = """<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>%(title)s</title>
 <style>body{font-family:sans-serif;margin:12px;background:#fafafa}canvas{border:1px solid #ccc;background:#fff}
 .k span{display:inline-block;margin-right:14px}</style></head>
 <body><h3>%(title)s</h3>
-<div class="k"><span style="color:#999">&#9679; object at the true pose</span><span style="color:#2a2">&#9679; MAP estimate</span>
-<span style="color:#36c">&#9679; particles</span><span style="color:#d22">&#8212; touch that hit</span>
-<span style="color:#e90">&#8212; touch that missed</span><span>&#9679; contacts</span></div>
+<div class="k">%(legend)s</div>
 <canvas id="c" width="760" height="560"></canvas>
-<p>Drag to rotate; the view spins until you do. Units: mm.</p>
+<p>Drag to rotate; the view spins until you do. Units: mm. %(note)s</p>
 <script>
 const D = %(data)s;
 const cv = document.getElementById('c'), g = cv.getContext('2d');
@@ -110,17 +108,7 @@ function proj(p) {
   const y2 = cp * y1 - sp * z, z2 = sp * y1 + cp * z;
   return [cv.width / 2 + sc * x1, cv.height / 2 - sc * z2, y2];
 }
-function dots(pts, col, r) { g.fillStyle = col; for (const p of pts) { const q = proj(p); g.fillRect(q[0] - r / 2, q[1] - r / 2, r, r); } }
-function draw() {
-  g.clearRect(0, 0, cv.width, cv.height);
-  dots(D.truth, '#aaa', 2); dots(D.map, '#2a2', 2); dots(D.particles, 'rgba(50,100,200,0.5)', 2);
-  for (const s of D.touches) {
-    const a = proj(s.a), b = proj(s.b);
-    g.strokeStyle = s.hit ? '#d22' : '#e90'; g.lineWidth = 1.2; g.beginPath(); g.moveTo(a[0], a[1]); g.lineTo(b[0], b[1]); g.stroke();
-    g.fillStyle = '#000'; g.font = '10px sans-serif'; g.fillText(s.step, a[0] + 3, a[1] - 3);
-    if (s.c) { const c = proj(s.c); g.beginPath(); g.arc(c[0], c[1], 3, 0, 6.3); g.fill(); }
-  }
-}
+%(draw)s
 cv.onmousedown = e => { drag = [e.clientX, e.clientY]; spin = false; };
 window.onmouseup = () => drag = null;
 cv.onmousemove = e => { if (!drag) return; yaw += (e.clientX - drag[0]) * 0.01; pitch += (e.clientY - drag[1]) * 0.01; drag = [e.clientX, e.clientY]; draw(); };
@@ -130,6 +118,39 @@ draw(); tick();
 <pre>%(table)s</pre>
 </body></html>
 """
+
+
+def html_page(path, *, title: str, legend: str, data: dict, draw_js: str, table: str = "", note: str = "") -> Path:
+    """Write a self-contained HTML page with a rotating 3-D canvas view (plain JS).
+
+    ``data`` (JSON-able, coordinates in mm) must hold ``center`` (3,) and ``extent``;
+    ``draw_js`` defines ``function draw()`` using ``g`` (the 2-D context), ``proj(p)``
+    (-> [x, y, depth] on the canvas) and ``D`` (the data). ``legend`` is trusted HTML.
+    """
+    import html
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(_PAGE % {"title": html.escape(title), "legend": legend, "data": json.dumps(data),
+                             "draw": draw_js, "table": html.escape(table), "note": html.escape(note)})
+    return path
+
+
+_LEGEND = ('<span style="color:#999">&#9679; object at the true pose</span><span style="color:#2a2">&#9679; MAP '
+           'estimate</span>\n<span style="color:#36c">&#9679; particles</span><span style="color:#d22">&#8212; touch '
+           'that hit</span>\n<span style="color:#e90">&#8212; touch that missed</span><span>&#9679; contacts</span>')
+
+_DRAW = """function dots(pts, col, r) { g.fillStyle = col; for (const p of pts) { const q = proj(p); g.fillRect(q[0] - r / 2, q[1] - r / 2, r, r); } }
+function draw() {
+  g.clearRect(0, 0, cv.width, cv.height);
+  dots(D.truth, '#aaa', 2); dots(D.map, '#2a2', 2); dots(D.particles, 'rgba(50,100,200,0.5)', 2);
+  for (const s of D.touches) {
+    const a = proj(s.a), b = proj(s.b);
+    g.strokeStyle = s.hit ? '#d22' : '#e90'; g.lineWidth = 1.2; g.beginPath(); g.moveTo(a[0], a[1]); g.lineTo(b[0], b[1]); g.stroke();
+    g.fillStyle = '#000'; g.font = '10px sans-serif'; g.fillText(s.step, a[0] + 3, a[1] - 3);
+    if (s.c) { const c = proj(s.c); g.beginPath(); g.arc(c[0], c[1], 3, 0, 6.3); g.fill(); }
+  }
+}"""
 
 
 def write_html(path, result, obj, *, title: str = "Active tactile localisation", n_points: int = 1200) -> Path:
@@ -155,8 +176,4 @@ def write_html(path, result, obj, *, title: str = "Active tactile localisation",
             "particles": mm(P[sel, :3, 3]), "touches": segs,
             "center": mm(truth_pts.mean(axis=0)),
             "extent": float(max(np.ptp(truth_pts, axis=0).max(), 1e-3) * 1e3 * 2.6)}
-    import html
-
-    path.write_text(_HTML % {"title": html.escape(title), "data": json.dumps(data),
-                             "table": html.escape(result.table())})
-    return path
+    return html_page(path, title=title, legend=_LEGEND, data=data, draw_js=_DRAW, table=result.table())
