@@ -45,12 +45,42 @@ def test_incremental_update_equals_refit(sphere):
     batch = ShapeMap(_bounds(sphere), free_space=False).update(res)
     Q = np.random.default_rng(1).uniform(-0.04, 0.04, (300, 3))
     m1, s1 = inc.mean_std(Q)
-    L_inc = inc._gp.L.copy()
+    L_inc, d_inc, lam = inc._gp.L.copy(), inc._gp._dKi.copy(), inc._gp.scale
     inc.refit()
     assert np.allclose(inc._gp.L, L_inc, atol=1e-10)
+    # diag(K^-1), kept incrementally for the calibration, matches the refactorised one
+    assert np.allclose(inc._gp._dKi, d_inc, rtol=1e-8) and np.isclose(inc._gp.scale, lam, rtol=1e-8)
     m2, s2 = batch.mean_std(Q)
     # same observations, in another order of blocks: the same posterior
     assert np.allclose(m1, m2, atol=1e-9) and np.allclose(s1, s2, atol=1e-9)
+
+
+def test_tracked_free_space_mean_matches_the_direct_mean(sphere):
+    # the free-space pool's mean is kept by extending L^-1 K(X, Q) block by block
+    res = _touches(sphere, 30, 2)
+    smap = ShapeMap(_bounds(sphere))
+    for k in range(0, 30, 5):
+        smap.update(res[k:k + 5])
+    gp = smap._gp
+    assert len(gp.Q) == len(smap._free) > 50
+    assert np.allclose(gp.tracked_mean(), gp.mean(smap._free), atol=1e-9)
+    gp.refactor()
+    assert np.allclose(gp.tracked_mean(), gp.mean(smap._free), atol=1e-9)
+
+
+def test_leave_one_out_scale_calibrates_the_band_on_sharp_edges():
+    # a box: the smooth kernel cannot follow its edges, so the sensor-noise band is too narrow
+    box = _quiet(trimesh.creation.box((0.12, 0.06, 0.03)), "box")
+    smap = ShapeMap(_bounds(box)).update(_touches(box, 40, 3))
+    truth, _, _ = box.sample_surface(3000, rng=4)
+    mu, sd = smap.mean_std(truth)
+    lam = smap._gp.scale
+    assert lam > 1.3
+    held = np.mean(np.abs(mu) <= 2 * sd)
+    raw = np.mean(np.abs(mu) <= 2 * sd / np.sqrt(lam))
+    assert held >= 0.8 and held > raw + 0.05
+    # the scale widens the band only: the mean (and so the mesh) is unchanged
+    assert np.allclose(smap.signed_distance(truth), mu, atol=1e-9)
 
 
 def test_gpis_recovers_a_sphere_and_its_uncertainty_shrinks(sphere):

@@ -15,6 +15,11 @@ Observations are kept as scalar rows: a point, a kind (-1 for a value, 0/1/2 for
 component of the gradient) and a noise variance. Adding a block of k rows to n extends
 the Cholesky factor of the kernel matrix by a bordered update in O(n^2 k) instead of a
 refactorisation in O((n + k)^3).
+
+A set of *tracked* query points (the free-space pool of :class:`ShapeMap`, whose mean is
+needed after every update) keeps V = L^-1 K(X, Q): each added block extends V by k rows
+in O(n k M), so their mean costs one matrix-vector product, m(Q) + V^T L^-1 r, instead of
+a new kernel matrix of M x n exponentials.
 """
 
 from __future__ import annotations
@@ -54,6 +59,13 @@ class GPIS:
         self.noise = np.zeros(0)
         self.L = np.zeros((0, 0))
         self._alpha = None
+        self._z = None
+        self.scored = np.zeros(0, dtype=bool)   # rows that enter the calibration
+        self.Q = np.zeros((0, 3))        # tracked query points
+        self._Vb = np.zeros((0, 0))      # buffer whose [:n, :len(Q)] block is L^-1 K(X, Q)
+        self._Lib = np.zeros((0, 0))     # buffer whose [:n, :n] block is L^-1
+        self._dKi = np.zeros(0)          # diag(K^-1)
+        self._scale = None
 
     # -- kernel ----------------------------------------------------------------------
     def kernel(self, X1, k1, X2, k2) -> np.ndarray:
@@ -85,8 +97,12 @@ class GPIS:
         prior = np.where(kind < 0, m, g[np.arange(len(X)), np.maximum(kind, 0)])
         return y - prior
 
-    def add(self, X, kind, y, noise) -> None:
-        """Append scalar observations and extend the Cholesky factor (bordered update)."""
+    def add(self, X, kind, y, noise, *, scored: bool = True) -> None:
+        """Append scalar observations and extend the Cholesky factor (bordered update).
+
+        ``scored=False`` keeps the rows out of the variance calibration (pseudo-observations
+        such as free-space bounds).
+        """
         X = np.asarray(X, float).reshape(-1, 3)
         kind = np.asarray(kind, dtype=np.int64).reshape(-1)
         y = np.asarray(y, float).reshape(-1)
@@ -97,6 +113,7 @@ class GPIS:
         if self.n == 0:
             L2 = _chol(C)
             self.L = L2
+            W = np.zeros((0, len(y)))
         else:
             B = self.kernel(self.X, self.kind, X, kind)
             W = solve_triangular(self.L, B, lower=True, check_finite=False)
@@ -107,21 +124,101 @@ class GPIS:
             L[n:, :n] = W.T
             L[n:, n:] = L2
             self.L = L
+        if len(self.Q):
+            Kq = self.kernel(X, kind, self.Q, np.full(len(self.Q), -1))
+            Vk = solve_triangular(L2, Kq - W.T @ self._V, lower=True, check_finite=False)
+            n, m = self.n, len(self.Q)
+            self._reserve(n + len(y), m)
+            self._Vb[n:n + len(y), :m] = Vk
+        # L^-1 of the bordered factor: [[Li, 0], [-L2^-1 W^T Li, L2^-1]]; diag(K^-1) = column norms^2
+        n, k = self.n, len(y)
+        L2i = solve_triangular(L2, np.eye(k), lower=True, check_finite=False)
+        if n + k > self._Lib.shape[0]:
+            buf = np.zeros((max(n + k, 2 * self._Lib.shape[0]),) * 2)
+            buf[:n, :n] = self._Lib[:n, :n]
+            self._Lib = buf
+        if n:
+            left = -(L2i @ (W.T @ self._Lib[:n, :n]))
+            self._Lib[n:n + k, :n] = left
+            self._dKi = self._dKi + np.einsum("ij,ij->j", left, left)
+        self._Lib[n:n + k, n:n + k] = L2i
+        self._dKi = np.concatenate([self._dKi, np.einsum("ij,ij->j", L2i, L2i)])
+        self.scored = np.concatenate([self.scored, np.full(k, bool(scored))])
         self.X = np.concatenate([self.X, X])
         self.kind = np.concatenate([self.kind, kind])
         self.y = np.concatenate([self.y, y])
         self.noise = np.concatenate([self.noise, noise])
-        self._alpha = None
+        self._alpha = self._z = self._scale = None
 
     def refactor(self) -> None:
         """Rebuild the Cholesky factor from scratch (the reference for the incremental one)."""
         if self.n:
             self.L = _chol(self.kernel(self.X, self.kind, self.X, self.kind) + np.diag(self.noise))
-        self._alpha = None
+            self._Lib = solve_triangular(self.L, np.eye(self.n), lower=True, check_finite=False)
+            self._dKi = np.einsum("ij,ij->j", self._Lib, self._Lib)
+        self._Vb = self._columns(self.Q)
+        self._alpha = self._z = self._scale = None
 
     def set_prior(self, prior) -> None:
         self.prior = prior
-        self._alpha = None
+        self._alpha = self._z = self._scale = None
+
+    @property
+    def scale(self) -> float:
+        """lambda >= 1: the leave-one-out variance scale (see the module notes)."""
+        if self._scale is None:
+            sel = self.scored
+            if np.count_nonzero(sel) < 2:
+                self._scale = 1.0
+            else:
+                a = self.alpha[sel]
+                self._scale = max(1.0, float(np.mean(a * a / self._dKi[sel])))
+        return self._scale
+
+    # -- tracked query points ------------------------------------------------------------
+    def _columns(self, Q) -> np.ndarray:
+        if self.n == 0 or len(Q) == 0:
+            return np.zeros((self.n, len(Q)))
+        return solve_triangular(self.L, self._kq(Q).T, lower=True, check_finite=False)
+
+    @property
+    def _V(self) -> np.ndarray:
+        return self._Vb[:self.n, :len(self.Q)]
+
+    def _reserve(self, rows, cols) -> None:
+        """Grow the buffer of V geometrically, so that appending costs no copy of V."""
+        r0, c0 = self._Vb.shape
+        if rows <= r0 and cols <= c0:
+            return
+        buf = np.empty((max(rows, r0 + r0 // 2 if rows > r0 else r0), max(cols, c0 + c0 // 2 if cols > c0 else c0)))
+        buf[:min(r0, self.n), :min(c0, len(self.Q))] = self._Vb[:self.n, :len(self.Q)]
+        self._Vb = buf
+
+    def track(self, Q) -> None:
+        """Add query points whose posterior mean :meth:`tracked_mean` keeps up to date."""
+        Q = np.asarray(Q, float).reshape(-1, 3)
+        if len(Q):
+            m = len(self.Q)
+            self._reserve(self.n, m + len(Q))
+            self._Vb[:self.n, m:m + len(Q)] = self._columns(Q)
+            self.Q = np.concatenate([self.Q, Q])
+
+    def untrack(self, keep) -> None:
+        """Keep only the tracked points where the boolean mask ``keep`` is True."""
+        keep = np.asarray(keep, bool).reshape(len(self.Q))
+        idx = np.flatnonzero(keep)
+        self._Vb[:self.n, :len(idx)] = self._Vb[:self.n, idx]
+        self.Q = self.Q[keep]
+
+    def tracked_mean(self) -> np.ndarray:
+        """(len(Q),) posterior mean at the tracked points: equal to ``mean(Q)``."""
+        m, _ = self.prior(self.Q)
+        if self.n == 0 or len(self.Q) == 0:
+            return m
+        if self._z is None:
+            self._z = solve_triangular(self.L, self._residual(self.X, self.kind, self.y), lower=True,
+                                       check_finite=False)
+        return m + self._V.T @ self._z
 
     @property
     def alpha(self) -> np.ndarray:
@@ -183,6 +280,7 @@ class GPIS:
         m, _ = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m, np.full(len(Q), np.sqrt(self.s2))
+        lam = self.scale
         mu = np.empty(len(Q))
         var = np.empty(len(Q))
         a = self.alpha
@@ -192,7 +290,7 @@ class GPIS:
             mu[i:i + len(q)] = Kq @ a
             V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
             var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
-        return m + mu, np.sqrt(np.maximum(var, 1e-18))
+        return m + mu, np.sqrt(lam * np.maximum(var, 1e-18))
 
 
 def _chol(A):

@@ -266,6 +266,7 @@ class ShapeMap:
         if new:
             self._free = np.concatenate([self._free] + new)
             self._free_c = np.concatenate([self._free_c] + val)
+            self._gp.track(np.concatenate(new))
 
     def _activate_free(self, rounds: int = 2, per_round: int = 64):
         """Add free-space observations where the mean says "inside" (most violated first).
@@ -278,7 +279,7 @@ class ShapeMap:
         for _ in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
                 return
-            mu = self._gp.mean(self._free)
+            mu = self._gp.tracked_mean()
             viol = self._free_c - mu
             idx = np.flatnonzero(viol > 0)
             if len(idx) == 0:
@@ -288,10 +289,11 @@ class ShapeMap:
             chosen = _spread(self._free[idx], 0.25 * self.lengthscale)
             idx = idx[chosen]
             self._gp.add(self._free[idx], np.full(len(idx), -1), self._free_c[idx],
-                         np.full(len(idx), (2.0 * self.sigma_pos) ** 2))
+                         np.full(len(idx), (2.0 * self.sigma_pos) ** 2), scored=False)
             keep = np.ones(len(self._free), bool)
             keep[idx] = False
             self._free, self._free_c = self._free[keep], self._free_c[keep]
+            self._gp.untrack(keep)
 
     def refit(self) -> "ShapeMap":
         """Refactor the GPIS from its stored observations (a check on the incremental update)."""
