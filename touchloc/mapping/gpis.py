@@ -290,7 +290,7 @@ class GPIS:
             mu[i:i + len(q)] = Kq @ a
             V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
             var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
-        return m + mu, np.sqrt(lam * np.maximum(var, 1e-18))
+        return m + mu, np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
 
 
 def _chol(A):

@@ -268,6 +268,8 @@ class ShapeMap:
             self._free_c = np.concatenate([self._free_c] + val)
             self._gp.track(np.concatenate(new))
 
+    _MAX_POOL = 4000
+
     def _activate_free(self, rounds: int = 2, per_round: int = 64):
         """Add free-space observations where the mean says "inside" (most violated first).
 
@@ -278,12 +280,12 @@ class ShapeMap:
         """
         for _ in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
-                return
+                break
             mu = self._gp.tracked_mean()
             viol = self._free_c - mu
             idx = np.flatnonzero(viol > 0)
             if len(idx) == 0:
-                return
+                break
             idx = idx[np.argsort(-viol[idx])][:per_round]
             # keep activated points apart (half a length scale) so the kernel matrix stays well conditioned
             chosen = _spread(self._free[idx], 0.25 * self.lengthscale)
@@ -292,8 +294,18 @@ class ShapeMap:
                          np.full(len(idx), (2.0 * self.sigma_pos) ** 2), scored=False)
             keep = np.ones(len(self._free), bool)
             keep[idx] = False
-            self._free, self._free_c = self._free[keep], self._free_c[keep]
-            self._gp.untrack(keep)
+            self._drop_free(keep)
+        if len(self._free) > self._MAX_POOL and self._gp.n:
+            # bound the pool: forget the points the map puts farthest outside, the least
+            # likely ever to contradict it
+            mu = self._gp.tracked_mean() - self._free_c
+            keep = np.zeros(len(self._free), bool)
+            keep[np.argsort(mu)[:self._MAX_POOL // 2]] = True
+            self._drop_free(keep)
+
+    def _drop_free(self, keep):
+        self._free, self._free_c = self._free[keep], self._free_c[keep]
+        self._gp.untrack(keep)
 
     def refit(self) -> "ShapeMap":
         """Refactor the GPIS from its stored observations (a check on the incremental update)."""
