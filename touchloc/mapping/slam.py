@@ -10,8 +10,9 @@ object frame:
 2. *weigh*: score each particle by the new touches against the current map, marginalising
    the map's own uncertainty: a contact p (normal n) at pose X has object-frame point
    x = X^-1 p and log-likelihood -1/2 mu(x)^2 / (sd(x)^2 + sigma_pos^2)
-   - 1/2 |u(x) - X^-1 n|^2 / sigma_nor^2, with mu and sd the map's mean and standard
-   deviation and u the unit gradient of mu; every swept point y adds log Phi(mu(y) / s);
+   - 1/2 |u(x) - X^-1 n|^2 / ((sd(x) / l)^2 + sigma_nor^2), with mu and sd the map's mean
+   and standard deviation, u the unit gradient of mu and l the kernel's length scale (a
+   contact where the map is unknown must not turn the pose to match the prior's normal); every swept point y adds log Phi(mu(y) / s);
 3. *resample* when the effective sample size drops below half;
 4. *map*: fold the touches into the map at the posterior mean pose.
 
@@ -199,7 +200,10 @@ class TactileSLAM:
                               for e in np.eye(3)], axis=1)
                 g /= np.maximum(np.linalg.norm(g, axis=1), 1e-9)[:, None]
                 n_loc = np.einsum("nij,nkj->nki", Rt, np.broadcast_to(c.normals, (N,) + c.normals.shape)).reshape(-1, 3)
-                ll += (-0.5 * np.sum((g - n_loc) ** 2, axis=1) / smap.sigma_nor**2).reshape(N, -1).sum(axis=1)
+                # the map's normal is as uncertain as its gradient: for the squared-exponential
+                # kernel the gradient's standard deviation is about the value's over the length scale
+                var_n = np.tile((sd / smap.lengthscale) ** 2, N) + smap.sigma_nor**2
+                ll += (-0.5 * np.sum((g - n_loc) ** 2, axis=1) / var_n).reshape(N, -1).sum(axis=1)
         # free space: swept points should lie outside
         pts = []
         for r in results:
