@@ -12,7 +12,8 @@ object frame:
    x = X^-1 p and log-likelihood -1/2 mu(x)^2 / (sd(x)^2 + sigma_pos^2)
    - 1/2 |u(x) - X^-1 n|^2 / ((sd(x) / l)^2 + sigma_nor^2), with mu and sd the map's mean
    and standard deviation, u the unit gradient of mu and l the kernel's length scale (a
-   contact where the map is unknown must not turn the pose to match the prior's normal); every swept point y adds log Phi(mu(y) / s);
+   contact where the map is unknown must not turn the pose to match the prior's normal);
+   every swept point y adds log Phi(mu(y) / s) with s^2 = sd(y)^2 + (2 sigma_pos)^2;
 3. *resample* when the effective sample size drops below half;
 4. *map*: fold the touches into the map at the posterior mean pose.
 
@@ -221,7 +222,11 @@ class TactileSLAM:
             mu = np.full(len(y), 1.0)
             if np.any(inb):
                 mu[inb] = smap.signed_distance(y[inb])
-            ll += log_ndtr(mu / (2 * smap.sigma_pos + 1e-4)).reshape(N, -1).sum(axis=1)
+            # where the map is unsure, a swept point inside its mean is weak evidence against the pose
+            T = self._mean_pose()
+            sd = smap.surface_std(np.clip((Y - T[:3, 3]) @ T[:3, :3], smap.lo, smap.hi))
+            scale = np.sqrt(np.tile(sd**2, N) + (2 * smap.sigma_pos + 1e-4) ** 2)
+            ll += log_ndtr(mu / scale).reshape(N, -1).sum(axis=1)
         return ll
 
 
