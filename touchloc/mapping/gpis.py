@@ -274,13 +274,17 @@ class GPIS:
             out[i:i + len(q)] = self.s2 * (KW[:, 0] + np.einsum("ij,ij->i", q, KW[:, 1:]))
         return m + out
 
-    def mean_std(self, Q):
-        """(M,) posterior mean and standard deviation of f at query points."""
+    def mean_std(self, Q, *, calibrated: bool = True):
+        """(M,) posterior mean and standard deviation of f at query points.
+
+        ``calibrated=False`` leaves out the leave-one-out variance scale (the variance
+        under the sensor's own noise model).
+        """
         Q = np.asarray(Q, float).reshape(-1, 3)
         m, _ = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m, np.full(len(Q), np.sqrt(self.s2))
-        lam = self.scale
+        lam = self.scale if calibrated else 1.0
         mu = np.empty(len(Q))
         var = np.empty(len(Q))
         a = self.alpha
