@@ -97,14 +97,9 @@ def plot_map(path, run, truth=None, *, title: str = "", history=None) -> Path:
 
 
 def _finish(fig, path, title):
-    import matplotlib.pyplot as plt
+    from ..planners.viz import finish_figure
 
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return finish_figure(fig, path, title)
 
 
 def _equal_3d(ax, lo, hi):

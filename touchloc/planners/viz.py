@@ -80,6 +80,13 @@ def plot_run(path, result, obj, *, title: str = "") -> Path:
     a.set_ylabel("y (mm)")
     a.set_title("top view (red: hits, orange: misses)")
     a.legend(fontsize=7, loc="upper right", markerscale=3)
+    return finish_figure(fig, path, title)
+
+
+def finish_figure(fig, path, title=None):
+    """Title, lay out, save at the library's resolution and close a matplotlib figure."""
+    import matplotlib.pyplot as plt
+
     if title:
         fig.suptitle(title)
     fig.tight_layout()
