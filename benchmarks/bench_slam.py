@@ -33,7 +33,8 @@ def _run(obj, mode, use_slam, steps, fingers, seed):
         run = explore(world, (lo - 0.06, hi + 0.06), steps, slam=slam, fingers=fingers, rng=seed)
         est = slam.trajectory[1:]
     else:
-        run = explore(world, (lo - 0.06, hi + 0.06), steps, fingers=fingers, rng=seed)
+        box = (lo - 0.06, hi + 0.06)
+        run = explore(_Clipped(world, box), box, steps, fingers=fingers, rng=seed)
         est = [np.eye(4)] * steps
     dt = time.perf_counter() - t0
     tru = world.trajectory[1:]
@@ -42,6 +43,24 @@ def _run(obj, mode, use_slam, steps, fingers, seed):
     ang = np.array([_angle(a[:3, :3], b[:3, :3]) for a, b in zip(est, tru)])
     return dict(chamfer=chamfer_distance(m, obj, n=4000), f=fscore(m, obj, 0.005, n=4000), drift=drift, ang=ang,
                 update=np.array([s["update_time"] for s in run.steps]), seconds=dt)
+
+
+class _Clipped:
+    """The static baseline's world: a pushed object can wander out of the map's box, and
+    the contacts that land outside are dropped (as TactileSLAM drops them)."""
+
+    def __init__(self, world, box):
+        self.world, self.lo, self.hi = world, box[0], box[1]
+
+    def execute(self, action):
+        from touchloc.planners import TouchResult
+
+        out = []
+        for r in self.world.execute(action):
+            if r.contact is not None and np.any((r.contact.points < self.lo) | (r.contact.points > self.hi)):
+                r = TouchResult(r.touch, r.travel, None)
+            out.append(r)
+        return out
 
 
 def run(quick: bool = False) -> str:
