@@ -7,12 +7,13 @@ import pytest
 import trimesh
 
 from touchloc.belief import ParticleBelief, PoseRegion, SMCFilter
+from touchloc.errors import ValidationError
 from touchloc.geometry import make_poses
 from touchloc.models import MeshObject, ProximityModel, TouchLikelihood
 from touchloc.planners import GuardedTouch, HandTouch, OneStepPlanner, RandomPlanner, simulate
 from touchloc.planners.candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
 from touchloc.planners.loop import SimulatedWorld, active_localization
-from touchloc.planners.metrics import add_s, expected_add_s
+from touchloc.planners.metrics import add_s, expected_add_s, prob_error_below
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +156,9 @@ def test_active_loop_localises_and_records(box, model):
     assert res.confident
     assert res.error < 0.005
     assert len(res.steps) == res.touches + 1 == len(seen)
-    assert res.steps[-1].expected_error < 0.003
+    # the default stopping rule: the belief claims P(ADD-S < 5 mm) >= 0.95 at the stop, not before
+    assert res.steps[-1].p_within >= 0.95
+    assert all(s.p_within < 0.95 for s in res.steps[1:-1])
     assert all(s.plan is not None and s.plan.scores.shape == (50,) for s in res.steps[1:])
     assert "touch" in res.table() and len(res.table().splitlines()) == res.touches + 3
 
@@ -178,3 +181,25 @@ def test_outputs_and_cli(tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 10_000
     html = (tmp_path / "t.html").read_text()
     assert "<canvas" in html and '"touches": [' in html and "ADD-S" in html
+
+
+def test_prob_error_below_counts_the_mass_within_the_threshold(box):
+    reg = _x_region(box)
+    # 70 % of the weight at the estimate, 30 % displaced by 20 mm along x
+    P = _at_x(np.r_[np.zeros(7), np.full(3, 0.02)])
+    b = ParticleBelief(P, np.log(np.r_[np.full(7, 0.1), np.full(3, 0.1)]), region=reg)
+    assert prob_error_below(b, box, 0.005, ref=P[0]) == pytest.approx(0.7)
+    assert prob_error_below(b, box, 0.05, ref=P[0]) == pytest.approx(1.0)
+
+
+def test_legacy_confidence_rule_and_stop_validation(box, model):
+    reg = PoseRegion.planar((0.0, 0.0), 0.03, z=0.015).with_rho(box.radius)
+    world = SimulatedWorld(box, reg.sample(1, rng=5)[0], rng=0)
+    gen = CandidateGenerator(reg, box, n_world=30, n_relative=20, seed=0)
+    res = active_localization(world, model, reg, OneStepPlanner(model, max_particles=400), gen, n_particles=600,
+                              max_touches=12, confidence=0.003, rng=0)
+    assert res.confident and res.steps[-1].expected_error < 0.003
+    assert np.isnan(res.steps[-1].p_within)
+    for bad in ({"stop_probability": 1.5}, {"stop_error": -1.0}, {"confidence": 0.0}):
+        with pytest.raises(ValidationError):
+            active_localization(world, model, reg, OneStepPlanner(model), gen, max_touches=1, **bad)

@@ -13,7 +13,8 @@ from .histogram import HistogramFilter
 from .identify import identify, log_evidence
 from .io import load_belief, pose_to_dict, save_belief
 from .mcmc import MCMC
-from .metrics import add, add_s, belief_coverage, credible_level, pose_errors, symmetric_pose_error
+from .metrics import (add, add_s, belief_coverage, credible_level, hpd_level, pairwise_symmetric_distance, pose_errors,
+                      symmetric_pose_error)
 from .particle_filter import ParticleFilter
 from .particles import RESAMPLERS, ParticleBelief, register_resampler, systematic_resample
 from .region import PoseRegion
@@ -24,6 +25,7 @@ __all__ = [
     "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
     "ScalingSeries", "ScaleStep", "ParticleFilter", "HistogramFilter", "AnnealedParticleFilter",
     "ManifoldParticleFilter", "SMCFilter", "MCMC", "identify", "log_evidence", "DegenerateBeliefWarning", "add_s", "add", "pose_errors",
-    "symmetric_pose_error", "credible_level", "belief_coverage",
+    "symmetric_pose_error", "credible_level", "hpd_level",
+    "pairwise_symmetric_distance", "belief_coverage",
     "save_belief", "load_belief", "pose_to_dict",
 ]

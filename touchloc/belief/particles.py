@@ -112,7 +112,12 @@ class ParticleBelief:
         return float(np.exp(-logsumexp(2.0 * self.log_weights)))
 
     def map_pose(self) -> np.ndarray:
-        """(4, 4) the particle of highest weight."""
+        """(4, 4) the particle of highest weight; for a posterior sample (equal weights),
+        the particle of highest posterior density that its estimator left in
+        ``info["map_pose"]``, when there is one."""
+        T = self.info.get("map_pose")
+        if T is not None and np.ptp(self.log_weights) < 1e-12:
+            return np.array(T, dtype=float).reshape(4, 4)
         return self.poses[int(np.argmax(self.log_weights))].copy()
 
     def mean_pose(self) -> np.ndarray:
@@ -206,8 +211,10 @@ class ParticleBelief:
 
     def with_particles(self, poses, log_weights) -> "ParticleBelief":
         """A belief with new particles and the same region, resolution and rho."""
+        # the estimator's MAP pose belongs to the old particles
+        info = {k: v for k, v in self.info.items() if k != "map_pose"}
         return ParticleBelief(poses, log_weights, region=self.region, resolution=self.resolution,
-                              rho=self.rho, info=self.info)
+                              rho=self.rho, info=info)
 
     def reweighted(self, log_likelihood) -> "ParticleBelief":
         """Bayes update: multiply the weights by exp(log_likelihood) (N,)."""

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._util import as_rng, progress
+from .._validate import as_count
 from ..errors import ValidationError
 from ._common import (ball_volume, check_contacts, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
@@ -59,6 +60,25 @@ class ScalingSeries:
         it. "contacts": g = sqrt(K) for K contacts, which widens the annealed posterior
         (whose width shrinks with K) so fewer true modes are pruned, at the price of
         more particles per scale. A number sets g directly.
+    final_moves : int
+        The posterior stage after the last scale (0: off, the belief is the weighted
+        cover at delta*, as Alg. 1 ends). The weights at tau = 1 are the posterior only
+        where the particles are dense compared with its width; with many contacts the
+        posterior is far narrower than delta* and a weighted cover then puts nearly all
+        its weight on the one or two particles nearest its peak, a few sigma away from
+        it. So the final stage takes ``n_posterior`` particles of the last cover (an
+        even-density sample of the region the series kept) and tempers the likelihood
+        in from power 0 to 1 by resample-move SMC (:func:`touchloc.belief.smc.temper`:
+        steps that keep half the effective sample size, at most ``final_stages`` of
+        them, each followed by ``final_moves`` Metropolis moves whose stationary
+        distribution is the tempered posterior). The result is an equally weighted
+        posterior sample;
+        ``info["cover"]`` keeps the weighted cover at delta* (and ``info`` its
+        evidence terms), ``info["map_pose"]`` the sample's pose of highest posterior.
+    n_posterior : int
+        Particles of the posterior sample.
+    final_stages : int
+        Cap on the tempering steps of the posterior stage.
     dynamics : GaussianDynamics, optional
         For the dynamic filter (initialize / predict / update).
     rho : float, optional
@@ -70,7 +90,8 @@ class ScalingSeries:
 
     def __init__(self, model, *, delta_final: float | None = None, m_per_delta: int = 6,
                  n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
-                 prune_ratio: float = 1e-3, anneal: str | float = "alg1", dynamics=None,
+                 prune_ratio: float = 1e-3, anneal: str | float = "alg1", final_moves: int = 3,
+                 n_posterior: int = 500, final_stages: int = 20, dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
         sp = getattr(model, "sigma_pos", None)
@@ -89,6 +110,12 @@ class ScalingSeries:
         if not isinstance(anneal, str) and not (np.isfinite(anneal) and anneal > 0):
             raise ValidationError(f"anneal gain must be > 0, got {anneal!r}")
         self.anneal = anneal
+        self.final_moves = as_count(final_moves, "final_moves", min=0, max=1000,
+                                    why="each move is one likelihood pass over the particles")
+        self.n_posterior = as_count(n_posterior, "n_posterior", min=10, max=10_000_000,
+                                    why="memory: 128 bytes a pose")
+        self.final_stages = as_count(final_stages, "final_stages", min=1, max=1000,
+                                     why="each stage is final_moves likelihood passes")
         self.m = int(m_per_delta)
         self.n_initial = int(n_initial)
         self.max_particles = int(max_particles)
@@ -146,6 +173,28 @@ class ScalingSeries:
         idx = np.unique(systematic_resample(w, len(w), self.rng))
         return poses[idx]
 
+    # -- final stage: from a cover to a posterior sample ---------------------------------
+    def _posterior(self, cover: ParticleBelief, contacts, region: PoseRegion, log_prior) -> ParticleBelief:
+        """The posterior stage after the last scale (see ``final_moves``)."""
+        from .smc import temper
+
+        X = cover.poses
+        # the cover is an even-density sample of its support: a uniform subsample of it
+        # stands for the prior restricted to the support
+        idx = self.rng.choice(len(X), self.n_posterior, replace=len(X) < self.n_posterior)
+        P = X[idx]
+
+        def new(Q):
+            return finite_loglik(self.model.log_likelihood(Q, contacts))
+        l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
+        P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
+                                              moves=self.final_moves, max_stages=self.final_stages, rng=self.rng)
+        out = ParticleBelief(P, None, region=region, resolution=cover.resolution, info=dict(cover.info),
+                             degenerate=cover.degenerate)
+        out.info.update(cover=cover, map_pose=P[int(np.argmax(l_old + l_new))].copy(), final_stages=stages,
+                        final_acceptance=float(np.mean(acc)) if acc else float("nan"))
+        return out
+
     # -- static ------------------------------------------------------------------------
     def iterate(self, contacts, region: PoseRegion, *, centers=None, delta0: float | None = None,
                 log_prior=None):
@@ -201,6 +250,8 @@ class ScalingSeries:
                 belief.info.update(delta_final=d_star, n_scales=n_scales, cover_volume=float(volume),
                                    log_likelihood=ll)
                 flag_degenerate(belief, float(ll.max()), contacts)
+                if self.final_moves > 0:
+                    belief = self._posterior(belief, contacts, region, log_prior)
                 yield ScaleStep(n, new_delta, tau, n_part, n_part, belief, time.perf_counter() - t0)
                 return
             X = self._prune(X, lw)

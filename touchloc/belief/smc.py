@@ -13,7 +13,7 @@ from ._common import check_model, check_region, measurement, split_measurements,
 from .particles import ParticleBelief
 from .region import PoseRegion
 
-__all__ = ["SMCFilter"]
+__all__ = ["SMCFilter", "temper"]
 
 
 class SMCFilter:
@@ -161,50 +161,11 @@ class SMCFilter:
         old = self._loglik(self.contacts, self.results, free_space) if (self.contacts is not None or self.results) \
             else None
         l_new = new(self.poses)
-        l_old = self.ll
-        beta, stages = 0.0, 0
-        acc = []
-        target = self.ess_fraction * self.n
-        while beta < 1.0 and stages < self.max_stages:
-            stages += 1
-
-            def ess(d):
-                lw = self.log_w + d * l_new
-                lw = lw - logsumexp(lw)
-                return np.exp(-logsumexp(2 * lw))
-            # largest step keeping the ESS above the target (bisection on the power)
-            lo, hi = 0.0, 1.0 - beta
-            if ess(hi) >= target or stages == self.max_stages:
-                d = hi
-            else:
-                for _ in range(30):
-                    mid = 0.5 * (lo + hi)
-                    lo, hi = (mid, hi) if ess(mid) >= target else (lo, mid)
-                d = max(lo, 1e-6)
-            beta = min(1.0, beta + d)
-            lw = self.log_w + d * l_new
-            lw -= logsumexp(lw)
-            self._belief = ParticleBelief(self.poses, lw, region=self.region)
-            scale = self._scale()
-            # resample (systematic)
-            keep = np.searchsorted(np.cumsum(np.exp(lw)), (self.rng.random() + np.arange(self.n)) / self.n)
-            keep = np.clip(keep, 0, self.n - 1)
-            P, lo_, ln_ = self.poses[keep], l_old[keep], l_new[keep]
-            # Metropolis moves at power beta (symmetric proposals: log-uniform step sizes)
-            for _ in range(self.moves):
-                s = scale * 10 ** self.rng.uniform(-1.5, 0.3, self.n)
-                Q = self.region.perturb(P, s, rng=self.rng, ball=False)
-                inside = self.region.contains(Q)
-                lq_old = old(Q) if old is not None else np.zeros(self.n)
-                lq_new = new(Q)
-                a = (lq_old + beta * lq_new) - (lo_ + beta * ln_)
-                ok = inside & (np.log(self.rng.random(self.n)) < a)
-                P = np.where(ok[:, None, None], Q, P)
-                lo_, ln_ = np.where(ok, lq_old, lo_), np.where(ok, lq_new, ln_)
-                acc.append(float(ok.mean()))
-            self.poses, l_old, l_new = P, lo_, ln_
-            self.log_w = np.full(self.n, -np.log(self.n))
-            self._belief = ParticleBelief(self.poses, self.log_w, region=self.region)
+        self.poses, l_old, l_new, stages, acc = temper(
+            self.poses, self.log_w, self.ll, l_new, old, new, self.region, moves=self.moves,
+            ess_fraction=self.ess_fraction, max_stages=self.max_stages, rng=self.rng)
+        self.log_w = np.full(self.n, -np.log(self.n))
+        self._belief = ParticleBelief(self.poses, self.log_w, region=self.region)
         self.ll = l_old + l_new
         self._belief.info["map_pose"] = self.poses[int(np.argmax(self.ll))].copy()
         if new_c is not None:
@@ -213,3 +174,92 @@ class SMCFilter:
         self.info["stages"].append(stages)
         self.info["accept"].append(float(np.mean(acc)) if acc else float("nan"))
         return self._belief
+
+
+def _scale(P, log_w, region) -> float:
+    """Root-mean-square spread (m, pose metric) of a weighted particle set."""
+    C = ParticleBelief(P, log_w, region=region).covariance()
+    return float(max(np.sqrt(np.trace(C) / C.shape[0]), 2e-4))
+
+
+def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_fraction: float = 0.5,
+           max_stages: int = 8, rng=None):
+    """Resample-move SMC from ``prior x exp(old)`` to ``prior x exp(old + new)``.
+
+    The power of the new term rises from 0 to 1 in steps that keep the effective sample
+    size at ``ess_fraction`` of the particles (bisection on the power); after each step
+    the particles are resampled (systematic) and moved by ``moves`` Metropolis steps
+    that leave the tempered target invariant: symmetric random walks in the region's
+    metric of log-uniform size from 3 % to 2 times the current spread, rejected outside
+    the region (the prior is uniform over it).
+
+    Parameters
+    ----------
+    poses : (N, 4, 4) float
+        Particles weighted by ``log_w`` that represent ``prior x exp(old)``.
+    log_w : (N,) float
+    l_old, l_new : (N,) float
+        ``old(poses)`` and ``new(poses)``.
+    old : callable or None
+        ``old(P) -> (M,)`` log-density already in the target (None: zero).
+    new : callable
+        ``new(P) -> (M,)`` log-likelihood being tempered in.
+    region : PoseRegion
+    rng : None, int or Generator
+
+    Returns
+    -------
+    poses : (N, 4, 4) float
+        Equally weighted particles of the final target.
+    l_old, l_new : (N,) float
+    stages : int
+    acceptance : list of float
+        Fraction of accepted moves, per move.
+    """
+    rng = as_rng(rng)
+    n = len(poses)
+    P, lw0 = poses, np.asarray(log_w, dtype=float)
+    l_old, l_new = np.asarray(l_old, dtype=float), np.asarray(l_new, dtype=float)
+    beta, stages, acc = 0.0, 0, []
+    target = ess_fraction * n
+    while beta < 1.0 and stages < max_stages:
+        stages += 1
+
+        def ess(d):
+            lw = lw0 + d * l_new
+            lw = lw - logsumexp(lw)
+            return np.exp(-logsumexp(2 * lw))
+        # largest step keeping the ESS above the target (bisection on the power)
+        lo, hi = 0.0, 1.0 - beta
+        if ess(hi) >= target or stages == max_stages:
+            d = hi
+        else:
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if ess(mid) >= target else (lo, mid)
+            d = max(lo, 1e-6)
+        beta = min(1.0, beta + d)
+        lw = lw0 + d * l_new
+        lw -= logsumexp(lw)
+        scale = _scale(P, lw, region)
+        keep = np.searchsorted(np.cumsum(np.exp(lw)), (rng.random() + np.arange(n)) / n)
+        keep = np.clip(keep, 0, n - 1)
+        P, lo_, ln_ = P[keep], l_old[keep], l_new[keep]
+        for _ in range(moves):
+            s = scale * 10 ** rng.uniform(-1.5, 0.3, n)
+            Q = region.perturb(P, s, rng=rng, ball=False)
+            inside = region.contains(Q)
+            lq_old = np.zeros(n)
+            lq_new = np.full(n, -np.inf)
+            if inside.any():
+                if old is not None:
+                    lq_old[inside] = old(Q[inside])
+                lq_new[inside] = new(Q[inside])
+            a = (lq_old + beta * lq_new) - (lo_ + beta * ln_)
+            ok = inside & (np.log(rng.random(n)) < a)
+            P = np.where(ok[:, None, None], Q, P)
+            lo_, ln_ = np.where(ok, lq_old, lo_), np.where(ok, lq_new, ln_)
+            acc.append(float(ok.mean()))
+        l_old, l_new = lo_, ln_
+        lw0 = np.full(n, -np.log(n))
+    return P, l_old, l_new, stages, acc

@@ -11,7 +11,7 @@ from .candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
 from .identity import IdentityPlanner
 from .lookahead import OneStepPlanner, Plan, RandomPlanner, TwoStepPlanner
 from .loop import ActiveResult, SimulatedWorld, Step, active_localization
-from .metrics import add_s, best_pose, expected_add_s
+from .metrics import add_s, best_pose, expected_add_s, prob_error_below
 from .scenarios import Scenario, make_scenario
 from .simulate import Outcomes, execute, simulate
 from .utilities import KLDivergence, NegEntropy, TaskSuccess, Utility
@@ -21,7 +21,7 @@ __all__ = [
     "fingers_of", "Outcomes", "simulate", "execute", "Plan", "OneStepPlanner", "TwoStepPlanner",
     "RandomPlanner", "Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "CandidateGenerator",
     "world_pool", "relative_pool", "hand_pool", "active_localization", "SimulatedWorld", "ActiveResult", "Step",
-    "add_s", "best_pose", "expected_add_s", "Scenario", "make_scenario", "IdentityPlanner",
+    "add_s", "best_pose", "expected_add_s", "prob_error_below", "Scenario", "make_scenario", "IdentityPlanner",
 ]
 
 _DEPRECATED = {"TouchFilter": "touchloc.belief.SMCFilter", "TouchLikelihood": "touchloc.models.TouchLikelihood",
