@@ -51,10 +51,10 @@ def estimators():
 
     def mcmc(m, c, r, s):
         start = ScalingSeries(m, rng=s).localize(c, r)
-        return MCMC(m, n_walkers=16, n_steps=250, burn=150, thin=2, rng=s).refine(c, start, r)
+        return MCMC(m, n_walkers=8, n_steps=150, burn=100, thin=1, rng=s).refine(c, start, r)
 
     return {"Scaling Series": ss, "Scaling Series, final cover only (before)": ss_cover,
-            "SMCFilter (2000)": smc, "ParticleFilter (IS, 20k)": pf, "MCMC (emcee from SS)": mcmc}
+            "SMCFilter (2000)": smc, "ParticleFilter (IS, 20k)": pf, "MCMC (emcee, 8 walkers x 250 steps, from SS)": mcmc}
 
 
 def run_cells(n_trials, meshes=MESHES, contacts=CONTACTS, names=None):
@@ -89,7 +89,7 @@ def _cov(qs, a):
 
 def run(quick: bool = False) -> str:
     warnings.simplefilter("ignore")
-    n_trials = 2 if quick else 5
+    n_trials = 1 if quick else 3
     res = run_cells(n_trials)
     names = list(estimators())
     rows = []

@@ -1,0 +1,63 @@
+"""Two-step against one-step lookahead where a first touch can set up a discriminating second one."""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+from _common import quiet_load, table
+from touchloc.planners import OneStepPlanner, TwoStepPlanner
+from touchloc.planners.loop import SimulatedWorld, active_localization
+from touchloc.planners.scenarios import make_scenario
+
+TITLE = "Two-step lookahead: a touch that sets up the next one (seed 001, 42.1.5)"
+
+STOP_ERROR, STOP_P = 0.005, 0.95
+
+
+def run(quick: bool = False) -> str:
+    warnings.simplefilter("ignore")
+    n = 3 if quick else 12
+    max_touches = 12
+    # The mug standing on a table at an unknown place and yaw: its body is a cylinder, so
+    # a touch on the body says where the mug is but almost nothing about its yaw; only a
+    # touch on the handle does, and it can be aimed only once the body is located.
+    sc = make_scenario(quiet_load("mug"), "planar", n_world=60, n_relative=40, seed=0)
+    planners = {"one-step": OneStepPlanner(sc.model),
+                "two-step, every first touch expanded": TwoStepPlanner(sc.model, branch=None,
+                                                                       max_particles=400)}
+    recs = {k: [] for k in planners}
+    for i in range(n):
+        true = sc.hidden_pose(rng=8000 + i)
+        for name, pl in planners.items():
+            world = SimulatedWorld(sc.obj, true, rng=8100 + i)
+            t0 = time.perf_counter()
+            res = active_localization(world, sc.model, sc.region, pl, sc.candidates, n_particles=2000,
+                                      max_touches=max_touches, stop_error=STOP_ERROR, stop_probability=STOP_P,
+                                      rng=8200 + i)
+            recs[name].append({"touches": res.touches, "confident": res.confident, "error": res.error,
+                               "time": time.perf_counter() - t0})
+    ref = np.array([r["touches"] for r in recs["one-step"]])
+    rows = []
+    for name, rs in recs.items():
+        t = np.array([r["touches"] for r in rs])
+        d = t - ref
+        paired = "-" if name == "one-step" else f"{d.mean():+.2f} +- {d.std(ddof=1) / np.sqrt(len(d)):.2f}"
+        wins = "-" if name == "one-step" else f"{int(np.sum(d < 0))} / {int(np.sum(d > 0))}"
+        ok = sum(r["confident"] and r["error"] < STOP_ERROR for r in rs)
+        rows.append((name, len(rs), f"{ok} / {len(rs)}", f"{t.mean():.2f}", f"{np.median(t):.0f}", paired, wins,
+                     f"{np.mean([r['time'] for r in rs]):.1f}"))
+    text = (
+        "The setting of 42.1.5: the mug standing on a table at an unknown place (100 mm square) and yaw. "
+        "Its body is a cylinder, so a touch on the body locates the mug but says little about its yaw; only "
+        "the handle does, and a touch can be aimed at the handle only once the body is located. A two-step "
+        "planner can value a first touch for the second one it enables; a one-step planner values each touch "
+        "by its own entropy reduction. Candidates: 60 world-fixed touches and 40 aimed at the faces of the "
+        "current estimate; the loop stops when the belief claims P(ADD-S < 5 mm) >= 0.95 (at most "
+        f"{max_touches} touches); the same hidden poses and sensor noise for both planners. Two-step: every "
+        "feasible first touch expanded (branch=None), 400 particles, 6 then 3 canonical observations.")
+    return text + "\n\n" + table(["planner", "runs", "localised", "touches (mean)", "touches (median)",
+                                  "minus one-step, same poses (mean +- s.e.)", "fewer / more touches",
+                                  "s per run"], rows)
