@@ -6,6 +6,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._util import as_poses, as_rng
+from .._validate import as_count, as_nonnegative_float, as_pose, as_positive_float
+from .._validate import as_poses as _valid_poses
 from ..errors import ValidationError
 from ..geometry import rotation_angle
 
@@ -144,13 +146,26 @@ def credible_level(belief, T_true, obj, *, radius: float | None = None, rho: flo
     return float(w[: close[0]].sum())
 
 
+def _check_obj(obj, symmetry=None):
+    from ..models import MeshObject, Symmetry
+
+    if not isinstance(obj, MeshObject):
+        raise ValidationError(f"obj must be a touchloc.models.MeshObject, got {type(obj).__name__}")
+    if symmetry is not None and not isinstance(symmetry, Symmetry):
+        raise ValidationError(f"symmetry must be None or a touchloc.models.Symmetry, got {type(symmetry).__name__}")
+
+
 def pairwise_symmetric_distance(obj, poses, *, rho: float, symmetry=None) -> np.ndarray:
     """(N, N) pose-metric distances ``sqrt(dt^2 + (rho dr)^2)`` modulo the object's symmetry.
 
     ``dt`` and ``dr`` are those of :func:`symmetric_pose_error` for every pair. O(N^2)
     memory: meant for a few hundred poses.
     """
-    P = as_poses(poses)
+    P = _valid_poses(poses, "poses")
+    _check_obj(obj, symmetry)
+    rho = as_nonnegative_float(rho, "rho")
+    if len(P) > 20_000:
+        raise ValidationError(f"pairwise distances of {len(P)} poses need too much memory; at most 20,000")
     sym = obj.symmetries() if symmetry is None else symmetry
     c = P[:, :3, :3] @ sym.center + P[:, :3, 3]
     dt2 = np.sum((c[:, None, :] - c[None, :, :]) ** 2, axis=2)
@@ -199,11 +214,20 @@ def hpd_level(belief, T_true, obj, *, n: int = 200, k: int = 5, radius: float | 
     -------
     float in [0, 1]
     """
-    if int(n) < 2 or not 1 <= int(k) < int(n):
-        raise ValidationError(f"need n >= 2 draws and 1 <= k < n neighbours, got n={n}, k={k}")
-    T = as_poses(T_true)
-    if len(T) != 1:
-        raise ValidationError(f"T_true must be one (4, 4) pose, got {np.shape(T_true)}")
+    from .particles import ParticleBelief
+
+    if not isinstance(belief, ParticleBelief):
+        raise ValidationError(f"belief must be a ParticleBelief, got {type(belief).__name__}")
+    _check_obj(obj, symmetry)
+    n = as_count(n, "n", min=2, max=10_000, why="the ranks cost O(n^2) distances")
+    k = as_count(k, "k", min=1)
+    if k >= n:
+        raise ValidationError(f"k must be below n (the draws), got k={k}, n={n}")
+    T = as_pose(T_true, "T_true")[None]
+    if radius is not None:
+        radius = as_nonnegative_float(radius, "radius")
+    if rho is not None:
+        rho = as_positive_float(rho, "rho")
     rng = as_rng(rng)
     rho = rho if rho is not None else (belief.rho if belief.rho is not None else obj.radius)
     lw = belief.log_weights

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_count, as_pose, as_positive_float
 from ..belief.metrics import add_s
+from ..errors import ValidationError
 
 __all__ = ["add_s", "expected_add_s", "best_pose", "prob_error_below"]
 
@@ -58,6 +60,18 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, n: int = 200, m
     -------
     float in [0, 1]
     """
+    from ..belief import ParticleBelief
+    from ..models import MeshObject
+
+    if not isinstance(belief, ParticleBelief):
+        raise ValidationError(f"belief must be a ParticleBelief, got {type(belief).__name__}")
+    if not isinstance(obj, MeshObject):
+        raise ValidationError(f"obj must be a touchloc.models.MeshObject, got {type(obj).__name__}")
+    threshold = as_positive_float(threshold, "threshold")
+    n = as_count(n, "n", max=100_000, why="surface points per pose")
+    max_particles = as_count(max_particles, "max_particles", max=100_000, why="poses scored")
+    if ref is not None:
+        ref = as_pose(ref, "ref")
     idx = belief.credible_set(0.999)
     if len(idx) > max_particles:
         idx = idx[np.linspace(0, len(idx) - 1, max_particles).astype(int)]
