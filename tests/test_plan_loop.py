@@ -5,6 +5,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from touchloc.belief import ParticleBelief, PoseRegion, SMCFilter
 from touchloc.errors import ValidationError
@@ -203,3 +204,18 @@ def test_legacy_confidence_rule_and_stop_validation(box, model):
     for bad in ({"stop_probability": 1.5}, {"stop_error": -1.0}, {"confidence": 0.0}):
         with pytest.raises(ValidationError):
             active_localization(world, model, reg, OneStepPlanner(model), gen, max_touches=1, **bad)
+
+
+def test_prob_error_below_in_the_pose_metric_modulo_symmetry(box):
+    reg = PoseRegion.box((0, 0, 0), 0.05, "full").with_rho(box.radius)
+    half = np.eye(4)
+    half[:3, :3] = Rotation.from_rotvec([0, 0, np.pi]).as_matrix()   # a symmetry of the box
+    quarter = np.eye(4)
+    quarter[:3, :3] = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()   # not one
+    P = np.stack([np.eye(4), half, quarter, _at_x(0.003)[0]])
+    b = ParticleBelief(P, region=reg)
+    # the identity, the half-turn and the 3 mm shift are within 5 mm; the quarter turn is not
+    assert prob_error_below(b, box, 0.005, ref=np.eye(4), metric="pose") == pytest.approx(0.75)
+    assert prob_error_below(b, box, 0.002, ref=np.eye(4), metric="pose") == pytest.approx(0.5)
+    with pytest.raises(ValidationError):
+        prob_error_below(b, box, 0.005, metric="nope")

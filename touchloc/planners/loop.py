@@ -110,6 +110,7 @@ def _belief_of(updater):
 
 def active_localization(world, model, region, planner, candidates, *, n_particles: int = 2000,
                         max_touches: int = 20, stop_error: float | None = None, stop_probability: float = 0.95,
+                        stop_metric: str = "add_s",
                         confidence: float | None = None, min_touches: int = 1,
                         updater=None, rng=None, progress_bar=None, keep_plans: bool = False,
                         callback=None) -> ActiveResult:
@@ -139,6 +140,9 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
         0.95. With a calibrated belief (``belief.hpd_level``; the default updater's is
         measured in docs/benchmarks.md) the claim is right in at least that fraction of
         the stops.
+    stop_metric : {"add_s", "pose"}
+        The error of the claim: ADD-S, or the pose metric modulo the object's
+        symmetries, which also requires features such as a mug's handle to be found.
     confidence : float, optional
         The older rule, used instead when given: stop when the belief's expected ADD-S of
         its estimate is below this (m). It is not a probability and is not calibrated.
@@ -165,6 +169,8 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     if confidence is None:
         stop_error = 0.005 if stop_error is None else as_positive_float(stop_error, "stop_error")
         stop_probability = as_probability(stop_probability, "stop_probability", open_low=True)
+        if stop_metric not in ("add_s", "pose"):
+            raise ValidationError(f"stop_metric must be 'add_s' or 'pose', got {stop_metric!r}")
     else:
         confidence = as_positive_float(confidence, "confidence")
     rng = as_rng(rng)
@@ -196,7 +202,8 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
             h = b.entropy("gaussian")
         except Exception:  # noqa: BLE001 - entropy of a degenerate belief
             h = float("nan")
-        p_in = prob_error_below(b, obj, stop_error, ref=T) if confidence is None else float("nan")
+        p_in = prob_error_below(b, obj, stop_error, ref=T, metric=stop_metric) if confidence is None \
+            else float("nan")
         return Step(i, action, results, h, expected_add_s(b, obj), err, t_plan, t_upd, T,
                     plan if keep_plans else None, p_in)
 

@@ -39,13 +39,17 @@ def expected_add_s(belief, obj, *, ref=None, n: int = 200, max_particles: int = 
     return float(w @ d)
 
 
-def prob_error_below(belief, obj, threshold: float, *, ref=None, n: int = 200, max_particles: int = 500,
-                     rng=0) -> float:
+def prob_error_below(belief, obj, threshold: float, *, ref=None, metric: str = "add_s", n: int = 200,
+                     max_particles: int = 500, rng=0) -> float:
     """The belief's probability that its estimate is within ``threshold`` of the truth:
-    P_X~belief[ADD-S(ref, X) < threshold].
+    P_X~belief[error(ref, X) < threshold].
 
-    ADD-S forgives the object's symmetries, so a belief spread along a symmetry is
-    confident. ``ref`` defaults to :func:`best_pose`. The heaviest particles holding 99.9 %
+    ``metric="add_s"``: the error is ADD-S, which forgives the object's symmetries (a
+    belief spread along a symmetry is confident) and also faces sliding along themselves
+    (a mug whose handle is unresolved may count as found). ``"pose"``: the pose metric
+    modulo the object's computed symmetries, ``sqrt(dt^2 + (rho dr)^2)``
+    (:func:`touchloc.belief.symmetric_pose_error`, ``rho`` the belief's), which sees every
+    rotation the symmetries do not excuse, the handle included. ``ref`` defaults to :func:`best_pose`. The heaviest particles holding 99.9 %
     of the weight (at most ``max_particles`` of them, evenly spaced in weight order) are
     scored; the missing 0.1 % counts as error.
 
@@ -54,7 +58,8 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, n: int = 200, m
     belief : ParticleBelief
     obj : MeshObject
     threshold : float
-        ADD-S (m).
+        Error (m) in the chosen metric.
+    metric : {"add_s", "pose"}
 
     Returns
     -------
@@ -68,6 +73,8 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, n: int = 200, m
     if not isinstance(obj, MeshObject):
         raise ValidationError(f"obj must be a touchloc.models.MeshObject, got {type(obj).__name__}")
     threshold = as_positive_float(threshold, "threshold")
+    if metric not in ("add_s", "pose"):
+        raise ValidationError(f"metric must be 'add_s' or 'pose', got {metric!r}")
     n = as_count(n, "n", max=100_000, why="surface points per pose")
     max_particles = as_count(max_particles, "max_particles", max=100_000, why="poses scored")
     if ref is not None:
@@ -79,5 +86,12 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, n: int = 200, m
     mass = min(float(belief.weights[belief.credible_set(0.999)].sum()), 1.0)
     w = w / w.sum() * mass
     ref = best_pose(belief) if ref is None else np.asarray(ref, dtype=float)
-    d = add_s(obj, belief.poses[idx], ref, n=n, rng=rng)
+    if metric == "add_s":
+        d = add_s(obj, belief.poses[idx], ref, n=n, rng=rng)
+    else:
+        from ..belief.metrics import symmetric_pose_error
+
+        rho = belief.rho if belief.rho is not None else obj.radius
+        dt, dr = symmetric_pose_error(obj, belief.poses[idx], ref)
+        d = np.hypot(dt, rho * dr)
     return float(w @ (d < float(threshold)))
