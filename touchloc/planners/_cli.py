@@ -8,7 +8,7 @@ from pathlib import Path
 PLANNERS = ("one-step", "two-step", "random", "kl")
 
 
-def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidence=3.0):
+def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidence=None):
     from ..cli import add_mesh_argument
 
     add_mesh_argument(p, default=mesh, help_extra=f"; default {mesh}")
@@ -20,8 +20,15 @@ def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidenc
     p.add_argument("--hands", type=int, default=0, help="also offer this many three-finger hand closings")
     p.add_argument("--particles", type=int, default=particles)
     p.add_argument("--max-touches", type=int, default=max_touches)
+    p.add_argument("--stop-error", type=float, default=5.0,
+                   help="stop when the belief gives its estimate an error below this (mm; default 5) ...")
+    p.add_argument("--stop-probability", type=float, default=0.95,
+                   help="... with at least this probability (default 0.95)")
+    p.add_argument("--stop-metric", default="add_s", choices=["add_s", "pose"],
+                   help="error of that claim: ADD-S, or the pose metric modulo symmetry (sees a mug's handle)")
     p.add_argument("--confidence", type=float, default=confidence,
-                   help=f"stop when the belief's expected ADD-S is below this (mm; default {confidence})")
+                   help="the older rule instead: stop when the belief's expected ADD-S is below this (mm)"
+                        + (f"; default {confidence}" if confidence is not None else ""))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out", help="directory for the plot and the HTML view ('' for none)")
     p.add_argument("--name", default="active", help="file stem of the outputs")
@@ -82,7 +89,9 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     res = active_localization(world, sc.model, sc.region, planner, sc.candidates, n_particles=args.particles,
-                              max_touches=args.max_touches, confidence=args.confidence * 1e-3, rng=args.seed,
+                              max_touches=args.max_touches, stop_error=args.stop_error * 1e-3,
+                              stop_probability=args.stop_probability, stop_metric=args.stop_metric,
+                              confidence=None if args.confidence is None else args.confidence * 1e-3, rng=args.seed,
                               callback=show)
     dt = time.perf_counter() - t0
     print(f"\n{'confident' if res.confident else 'not confident'} after {res.touches} touches "
