@@ -3,7 +3,9 @@
 Reproduces seed 000's evaluation (section V): the number of detected sides over time
 (Fig. 6), its mean and spread over the second half of each data set (Fig. 7) and the
 three estimators' memories over time (Fig. 5), plus the orientation error over time and
-the time per step, with the particle filter as a fourth estimator.
+the time per step. Three families are compared: the neural fields of seed 000 (with its
+two baselines), a particle filter over the orientation, and the n-gon mapped in 3-D by
+tactile SLAM (:class:`~touchloc.dnf.mapped.MappedPrismEstimator`, ``mapped=True``).
 """
 
 from __future__ import annotations
@@ -21,20 +23,26 @@ from .tracker import OrientationTracker
 
 __all__ = ["EstimatorRun", "default_estimators", "run_estimator", "compare", "summary_table",
            "orientation_error", "plot_surface_counts", "plot_second_half", "plot_orientation_error",
-           "plot_memories", "plot_step_time", "ESTIMATOR_COLORS"]
+           "plot_memories", "plot_step_time", "ESTIMATOR_COLORS", "MAPPED"]
 
 TWO_PI = 2.0 * np.pi
 
 #: colours of seed 000's Fig. 6 (blue, green, red) plus one for the particle filter
 ESTIMATOR_COLORS = {"histogram": "tab:blue", "memory, uncorrected": "tab:green", "DNF, corrected": "tab:red",
-                    "particle filter": "tab:purple"}
+                    "particle filter": "tab:purple", "3-D map (tactile SLAM)": "tab:brown"}
+
+#: display name of the third family
+MAPPED = "3-D map (tactile SLAM)"
 
 
-def default_estimators(*, particles: int = 400, rng=None) -> dict:
-    """Factories of the four estimators, keyed by display name.
+def default_estimators(*, particles: int = 400, mapped: bool = False, mapped_every: int = 4, rng=None) -> dict:
+    """Factories of the estimators, keyed by display name.
 
-    ``rng`` seeds the particle filter (an int gives every run the same seed, so results
-    are reproducible).
+    ``rng`` seeds the particle filter and the mapped prism (an int gives every run the
+    same seed, so results are reproducible). With ``mapped`` the third family joins: the
+    n-gon mapped in 3-D by tactile SLAM, touching on every ``mapped_every``-th sample
+    (:class:`~touchloc.dnf.mapped.MappedPrismEstimator`; seconds per data set, not
+    milliseconds, and it needs simulated data).
 
     Returns
     -------
@@ -43,12 +51,17 @@ def default_estimators(*, particles: int = 400, rng=None) -> dict:
         odometry)``, ``orientation`` and ``memory`` (an activation over orientation for
         :func:`count_surfaces`) can join the comparison.
     """
-    return {
+    out = {
         "histogram": lambda: HistogramEstimator(360),
         "memory, uncorrected": lambda: OrientationTracker(correct=False),
         "DNF, corrected": lambda: OrientationTracker(),
         "particle filter": lambda: ParticleOrientationEstimator(particles, rng=rng),
     }
+    if mapped:
+        from .mapped import MappedPrismEstimator
+
+        out[MAPPED] = lambda: MappedPrismEstimator(every=mapped_every, rng=rng)
+    return out
 
 
 @dataclass
@@ -111,8 +124,14 @@ def orientation_error(estimate, truth, n_sides) -> np.ndarray:
 
 
 def run_estimator(name: str, make, dataset, *, record: bool = False) -> EstimatorRun:
-    """Run one estimator over a data set, counting sides after every sample."""
+    """Run one estimator over a data set, counting sides after every sample.
+
+    An estimator with a ``bind(dataset)`` method (the mapped prism, which simulates its
+    touches on the data set's object) is bound to the data set first.
+    """
     est = make()
+    if hasattr(est, "bind"):
+        est.bind(dataset)
     T = len(dataset)
     counts = np.empty(T, dtype=np.int64)
     orient = np.empty(T)

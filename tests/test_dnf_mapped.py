@@ -1,0 +1,72 @@
+"""The third family of the DNF comparison: the rotating n-gon mapped in 3-D by tactile SLAM."""
+
+import numpy as np
+import pytest
+
+from touchloc.dnf import count_surfaces, generate_rotation_dataset
+from touchloc.dnf.compare import MAPPED, default_estimators, orientation_error, run_estimator
+from touchloc.dnf.mapped import MappedPrismEstimator, prism_mesh, section_normal_density
+from touchloc.errors import ValidationError
+
+
+def _polygon_radius(n, n_rays=360, r=0.03):
+    """Radius along evenly spaced rays of a regular n-gon with circumradius r (corners at 2 pi j / n)."""
+    phi = np.arange(n_rays) * 2 * np.pi / n_rays
+    half = np.pi / n
+    rel = (phi % (2 * half)) - half            # angle from the nearest side's normal
+    return r * np.cos(half) / np.cos(rel)
+
+
+def test_section_density_is_flat_for_a_circle_and_peaks_at_each_side():
+    circle = section_normal_density(np.full(180, 0.03))
+    np.testing.assert_allclose(circle, 1.0, atol=0.15)     # 180 segments in 360 bins: a ripple
+    assert count_surfaces(np.clip(circle / 4.0, 0, 1)) == 0
+    for n in (4, 5, 6, 8):
+        dens = section_normal_density(_polygon_radius(n))
+        assert count_surfaces(np.clip(dens / 4.0, 0, 1)) == n
+    assert section_normal_density(np.full(10, np.nan)).max() == 0.0
+
+
+def test_prism_mesh_has_n_side_normals():
+    obj = prism_mesh(6, diameter=0.05, height=0.04)
+    nz = obj.mesh.face_normals
+    side = np.abs(nz[:, 2]) < 1e-6
+    ang = np.unique(np.round(np.degrees(np.arctan2(nz[side, 1], nz[side, 0])) % 360, 3))
+    assert ang.size == 6
+    with pytest.raises(ValidationError):
+        prism_mesh(2)
+    with pytest.raises(ValidationError):
+        prism_mesh(6, diameter=-1.0)
+
+
+def test_mapped_prism_counts_sides_and_corrects_the_odometry():
+    ds = generate_rotation_dataset(6, revolutions=1.5, under_estimate=(0.08, 0.08), slip_std=0.0, rng=4)
+    run = run_estimator(MAPPED, lambda: MappedPrismEstimator(every=3, rng=0), ds)
+    assert run.counts[-1] == 6
+    # the odometry under-estimates by 8 %: 43 deg after 1.5 turns, wrapped to the 60 deg symmetry
+    odo = np.abs(orientation_error(ds.odometry, ds.true_orientation, 6))[-20:]
+    est = np.abs(run.error)[-20:]
+    assert np.median(odo) > np.radians(12)
+    assert np.median(est) < 0.5 * np.median(odo)
+
+
+def test_round_cylinder_maps_no_sides():
+    ds = generate_rotation_dataset(0, revolutions=1.0, rng=5)
+    run = run_estimator(MAPPED, lambda: MappedPrismEstimator(every=3, rng=0), ds)
+    assert run.counts[-1] == 0
+
+
+def test_mapped_family_joins_on_request_and_checks_its_input():
+    assert MAPPED not in default_estimators()
+    assert MAPPED in default_estimators(mapped=True, rng=0)
+    est = MappedPrismEstimator()
+    with pytest.raises(ValidationError, match="bind"):
+        est.step([0.1], 0.0)
+    ds = generate_rotation_dataset(4, revolutions=0.2, rng=1)
+    ds.true_orientation = None
+    with pytest.raises(ValidationError, match="true_orientation"):
+        est.bind(ds)
+    with pytest.raises(ValidationError):
+        MappedPrismEstimator(every=0)
+    with pytest.raises(ValidationError):
+        MappedPrismEstimator(flat_ratio=1.0)

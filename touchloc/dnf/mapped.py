@@ -1,0 +1,285 @@
+"""A third family for the DNF comparison: the rotating n-gon mapped in 3-D by tactile SLAM.
+
+Seed 000 solves one rotational degree of freedom of an n-gon with neural fields. The same
+experiment is a special case of tactile SLAM in 3-D (:class:`touchloc.mapping.TactileSLAM`):
+an extruded n-gon prism turns about its axis between two fingers, the hand reports its
+biased odometry, and the SLAM estimate holds both the object's pose (its orientation
+correction) and a shape map in the object frame (its sides).
+
+:class:`MappedPrismEstimator` plays this on the *same* data sets as the other estimators
+(:class:`~touchloc.dnf.RotationDataset`): the data set's true rotation turns the prism, its
+odometry is the SLAM's odometry prior (so the bias and the regrasp slips are the same),
+and the measured normal angles say which of the two fingers (at world angles ``fingers``,
+the generator's point-symmetric grasp) are in contact. A sample without normals is a
+sample without touch. Each touch is a guarded move of a finger towards the axis, so the
+contact wanders over a side while the object turns under the finger, as in the seed's
+strokes; it is ray-cast onto the prism at its true pose (:func:`touchloc.planners.simulate.execute`,
+with contact noise), so the SLAM sees 3-D contact points and normals where the tracker
+sees angles.
+
+Side count. The map's cross-section through the object's centre is traced along rays
+from the axis (a few Newton steps on the map's signed distance per ray). The outward
+normal direction of each piece of the traced outline, weighted by its length and
+smoothed like :func:`count_surfaces` smooths, is a density over orientation that is 1
+everywhere for a circle and has one sharp peak per flat side. :attr:`memory` is that
+density divided by ``flat_ratio`` and clipped to 1, so that :func:`count_surfaces`'s
+threshold of 0.4 counts the orientations at which the outline has at least
+``0.4 * flat_ratio`` times a circle's share of its length: the flat faces.
+
+Orientation. :attr:`orientation` is the SLAM pose's rotation about the axis (the map's
+frame is the object's frame at the first update, like the tracker's), carried forward
+with the odometry between SLAM updates.
+
+This module imports :mod:`touchloc.mapping` and :mod:`touchloc.planners` when an
+estimator is built, not at import time, so that :mod:`touchloc.dnf` itself keeps to
+models and belief.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from .._util import as_rng
+from ..errors import ValidationError
+from .tracker import as_angles, as_odometry
+
+__all__ = ["MappedPrismEstimator", "prism_mesh", "section_normal_density"]
+
+TWO_PI = 2.0 * np.pi
+
+
+def prism_mesh(n_sides: int, *, diameter: float = 0.06, height: float = 0.06):
+    """An extruded regular n-gon (a round cylinder for ``n_sides = 0``) about the z axis.
+
+    The corners lie on a circle of ``diameter`` (m); side ``j``'s outward normal points at
+    ``pi / n + 2 pi j / n``. Returns a :class:`touchloc.models.MeshObject`.
+    """
+    import trimesh
+
+    from ..models import MeshObject
+
+    if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
+        raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
+    for name, v in (("diameter", diameter), ("height", height)):
+        if not (np.isfinite(v) and 0 < v < 1):
+            raise ValidationError(f"{name} must be a length in (0, 1) m, got {v!r}")
+    m = trimesh.creation.cylinder(radius=diameter / 2, height=height, sections=int(n_sides) if n_sides else 96)
+    return MeshObject(m, name=f"{n_sides}-gon prism" if n_sides else "round cylinder")
+
+
+def _rz(a: float) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(a), np.sin(a)
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+def section_normal_density(radius, n_bins: int = 360, *, sigma: float = np.radians(3.0)) -> np.ndarray:
+    """Length of an outline per orientation of its outward normal, relative to a circle's.
+
+    Parameters
+    ----------
+    radius : (M,) float
+        The outline as a radius per ray, rays evenly spaced over ``[0, 2 pi)``
+        counter-clockwise (nan: no surface on that ray; such rays are skipped).
+    n_bins : int
+        Sites of the result over ``[0, 2 pi)``.
+    sigma : float
+        Periodic Gaussian smoothing, rad.
+
+    Returns
+    -------
+    (n_bins,) float
+        1 everywhere for a circle; a flat side of length ``L`` adds a peak of area
+        ``2 pi L / perimeter`` (rad) at its normal's orientation.
+    """
+    r = np.asarray(radius, dtype=np.float64)
+    phi = np.arange(r.size) * (TWO_PI / r.size)
+    ok = np.isfinite(r) & (r > 0)
+    if ok.sum() < 3:
+        return np.zeros(n_bins)
+    pts = np.stack([np.cos(phi[ok]) * r[ok], np.sin(phi[ok]) * r[ok]], axis=1)
+    d = np.roll(pts, -1, axis=0) - pts
+    length = np.linalg.norm(d, axis=1)
+    normal = np.arctan2(d[:, 1], d[:, 0]) - np.pi / 2      # outward for a counter-clockwise outline
+    b = np.floor((normal % TWO_PI) * (n_bins / TWO_PI)).astype(np.int64) % n_bins
+    h = np.bincount(b, weights=length, minlength=n_bins)
+    if sigma > 0:
+        h = gaussian_filter1d(h, sigma * n_bins / TWO_PI, mode="wrap")
+    return h * (n_bins / max(length.sum(), 1e-12))
+
+
+class MappedPrismEstimator:
+    """The rotating n-gon of seed 000 mapped in 3-D by :class:`touchloc.mapping.TactileSLAM`.
+
+    Call :meth:`bind` with a data set (:func:`~touchloc.dnf.run_estimator` does), then
+    :meth:`step` with each sample, as for any estimator of the comparison.
+
+    Parameters
+    ----------
+    every : int
+        Touch on every ``every``-th sample (the others only advance the odometry): the
+        SLAM's cost grows with the number of contacts in its map.
+    diameter, height : float
+        Size of the prism (m).
+    n_particles : int
+        Pose particles of the SLAM filter (planar: x, y and the rotation about the axis).
+    lengthscale : float
+        Length scale of the map (GPIS, m).
+    noise_pos, noise_nor : float
+        Contact noise of the simulated touches (m; unit-vector components).
+    fingers : sequence of float
+        World angles (rad) of the fingers' approach directions; a finger touches in a
+        sample when one of its normals lies within 90 degrees of it.
+    finger_jitter : float
+        Standard deviation of each approach direction per touch, rad.
+    flat_ratio : float
+        Density (relative to a circle) at which :attr:`memory` saturates; see the module
+        notes.
+    n_sites : int
+        Sites of :attr:`memory` over ``[0, 2 pi)``.
+    n_rays : int
+        Rays of the traced cross-section.
+    rng : None, int or numpy Generator
+        Seeds both the touch noise and the SLAM filter.
+    """
+
+    def __init__(self, *, every: int = 4, diameter: float = 0.06, height: float = 0.06, n_particles: int = 100,
+                 lengthscale: float = 0.012, noise_pos: float = 0.0005, noise_nor: float = 0.05,
+                 flat_ratio: float = 4.0, n_sites: int = 360, n_rays: int = 180, fingers=(0.0, np.pi),
+                 finger_jitter: float = np.radians(3.0), rng=None):
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or not 1 <= every <= 100:
+            raise ValidationError(f"every must be an int in [1, 100], got {every!r}")
+        if not (np.isfinite(flat_ratio) and flat_ratio > 1):
+            raise ValidationError(f"flat_ratio must be > 1 (a circle's density is 1), got {flat_ratio!r}")
+        for name, v in (("n_sites", n_sites), ("n_rays", n_rays)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
+                raise ValidationError(f"{name} must be an int in [16, 4096], got {v!r}")
+        self.fingers = as_angles(fingers, "fingers")
+        if not (np.isfinite(finger_jitter) and 0 <= finger_jitter < np.pi):
+            raise ValidationError(f"finger_jitter must be an angle in [0, pi) rad, got {finger_jitter!r}")
+        self.finger_jitter = float(finger_jitter)
+        self.every = int(every)
+        self.diameter, self.height = float(diameter), float(height)
+        self.n_particles = int(n_particles)
+        self.lengthscale = float(lengthscale)
+        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
+        self.flat_ratio = float(flat_ratio)
+        self.n_sites, self.n_rays = int(n_sites), int(n_rays)
+        self.rng = as_rng(rng)
+        self.slam = None
+        self.odometry = 0.0
+        self.n_steps = 0
+        self.n_updates = 0
+        self._memory = np.zeros(self.n_sites)
+        self._dirty = False
+
+    # -- set-up ------------------------------------------------------------------------
+    def bind(self, dataset) -> "MappedPrismEstimator":
+        """Take the prism's shape and true rotation from a data set and start afresh.
+
+        Parameters
+        ----------
+        dataset : RotationDataset
+            Needs ``n_surfaces`` and ``true_orientation`` (simulated data).
+        """
+        from ..mapping import TactileSLAM
+
+        if dataset.n_surfaces is None or dataset.true_orientation is None:
+            raise ValidationError("the mapped prism needs a data set with n_surfaces and true_orientation "
+                                  "(a simulated one); recorded data carry no 3-D contacts")
+        self.obj = prism_mesh(int(dataset.n_surfaces), diameter=self.diameter, height=self.height)
+        self._truth = np.asarray(dataset.true_orientation, dtype=np.float64)
+        half = 0.5 * self.diameter + 0.015
+        zh = 0.5 * self.height
+        self.slam = TactileSLAM(((-half, -half, -zh - 0.01), (half, half, zh + 0.01)), planar=True,
+                                n_particles=self.n_particles, motion=(0.0005, np.radians(0.5)),
+                                odometry_noise=(0.0003, np.radians(1.0)), sigma_pos=0.001, sigma_nor=0.1,
+                                lengthscale=self.lengthscale, rng=self.rng)
+        self.odometry = 0.0
+        self._odo_used = 0.0
+        self._yaw = 0.0
+        self.n_steps = 0
+        self.n_updates = 0
+        self._memory = np.zeros(self.n_sites)
+        self._dirty = False
+        return self
+
+    # -- state -------------------------------------------------------------------------
+    @property
+    def orientation(self) -> float:
+        """Rotation about the axis: the SLAM pose's, plus the odometry since its last update (rad)."""
+        return self._yaw + (self.odometry - self._odo_used)
+
+    @property
+    def correction(self) -> float:
+        """Orientation minus odometry, rad."""
+        return self.orientation - self.odometry
+
+    @property
+    def memory(self) -> np.ndarray:
+        """Normal-direction density of the mapped cross-section over ``flat_ratio``, in [0, 1]."""
+        if self._dirty:
+            self._memory = np.clip(section_normal_density(self.section(), self.n_sites) / self.flat_ratio, 0.0, 1.0)
+            self._dirty = False
+        return self._memory
+
+    def section(self) -> np.ndarray:
+        """Radius of the mapped outline at height 0 along ``n_rays`` rays (m; nan where none)."""
+        phi = np.arange(self.n_rays) * (TWO_PI / self.n_rays)
+        u = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)
+        r = np.full(self.n_rays, 0.5 * self.diameter)
+        r_max = float(self.slam.map.hi[0])
+        for _ in range(5):             # Newton steps on a signed distance (slope about 1 along the ray)
+            r = np.clip(r - self.slam.map.signed_distance(r[:, None] * u), 0.002, r_max)
+        miss = np.abs(self.slam.map.signed_distance(r[:, None] * u)) > 0.1 * self.diameter
+        r[miss] = np.nan
+        return r
+
+    # -- one sample --------------------------------------------------------------------
+    def step(self, normal_angles, odometry: float) -> float:
+        """One sample: touch where the normals point (every ``every``-th sample) and update the SLAM.
+
+        Parameters
+        ----------
+        normal_angles : (K,) float
+            World-frame normal angles (rad); they say which fingers touch.
+        odometry : float
+            The hand's estimate of the accumulated rotation, rad.
+
+        Returns
+        -------
+        float
+            The orientation estimate, rad.
+        """
+        from ..planners import GuardedTouch
+        from ..planners.simulate import execute
+
+        if self.slam is None:
+            raise ValidationError("call bind(dataset) before step(): the mapped prism needs the data set's "
+                                  "shape and true rotation")
+        a = as_angles(normal_angles, allow_empty=True)
+        self.odometry = as_odometry(odometry)
+        t = self.n_steps
+        self.n_steps += 1
+        if a.size == 0 or t % self.every or t >= self._truth.size:
+            return self.orientation
+        touching = np.any(np.cos(a[None, :] - self.fingers[:, None]) > 0.0, axis=1)
+        angles = self.fingers[touching] + self.rng.normal(0.0, self.finger_jitter, int(touching.sum()))
+        pose = _rz(self._truth[t])
+        results = []
+        reach = 0.5 * self.diameter + 0.012
+        for ang in angles:
+            d = np.array([np.cos(ang), np.sin(ang), 0.0])
+            z = self.rng.uniform(-0.25, 0.25) * self.height
+            touch = GuardedTouch(origin=reach * d + [0.0, 0.0, z], direction=-d, max_travel=reach)
+            results += execute(self.obj, pose, touch, noise_pos=self.noise_pos, noise_nor=self.noise_nor, rng=self.rng)
+        T = self.slam.update(results, odometry=_rz(self.odometry - self._odo_used))
+        self._odo_used = self.odometry
+        self._yaw = float(np.arctan2(T[1, 0], T[0, 0]))
+        # keep the estimate continuous with the odometry (no wrap to (-pi, pi])
+        self._yaw = self.odometry + float(np.angle(np.exp(1j * (self._yaw - self.odometry))))
+        self.n_updates += 1
+        self._dirty = True
+        return self.orientation
