@@ -44,3 +44,67 @@ def test_no_contact_is_an_empty_valid_tracker_input():
     assert ang.shape == (0,) and fingers.shape == (0,)
     tr = OrientationTracker()
     assert tr.step(ang, 0.1) == pytest.approx(0.1)
+
+
+# -- end to end: the emulated hand's tactile bytes -> normals -> tracker ---------------------------
+def _side_pressed(delta, kin):
+    """A 6-gon prism on the hand's axis, one side turned by ``delta`` from facing the thumb."""
+    import trimesh
+
+    from touchloc.hardware.emulator import SimWorld
+    from touchloc.models import MeshObject
+
+    r_in = 0.018
+    obj = MeshObject(trimesh.creation.cylinder(radius=r_in / np.cos(np.pi / 6), height=0.06, sections=6))
+    T = np.eye(4)
+    a = -np.pi / 2 - np.pi / 6 + delta          # side j=... normal at pi/6 + a: -pi/2 + delta (towards the thumb)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[2, 3] = 0.136
+    return SimWorld(obj, T, kinematics=kin)
+
+
+GRASP = np.radians([60, 4, -4, 4, -4, 4, -4])
+
+
+@pytest.mark.parametrize("delta_deg", [-10.0, 0.0, 5.0])
+def test_curved_pad_reads_the_side_normal(delta_deg):
+    from touchloc.hardware.dnf_features import CurvedPadKinematics, _close_on
+
+    kin = CurvedPadKinematics(0.02)
+    world = _side_pressed(np.radians(delta_deg), kin)
+    grasp = _close_on(world, GRASP, 0.0008)          # each finger closes until it presses 0.8 mm
+    assert max(float(world.penetration(grasp, (m,))[0].max()) for m in (1, 3, 5)) == pytest.approx(0.0008, abs=1e-4)
+    ang, fingers = frame_normal_angles(world.pressures(grasp), grasp, axis=[0, 0, 1], reference=[1, 0, 0],
+                                       pad_radius=0.02)
+    thumb = ang[fingers == 1]
+    assert thumb.size == 1
+    want = -np.pi / 2 + np.radians(delta_deg)
+    # texel pitch 3.4 mm on a 20 mm radius (10 deg a texel): the pressure-weighted centroid
+    # resolves the normal to a few degrees
+    assert abs(np.angle(np.exp(1j * (thumb[0] - want)))) < np.radians(4.0)
+    with pytest.raises(ValidationError):
+        CurvedPadKinematics(0.0)
+
+
+def test_tracker_runs_on_the_emulated_hands_bytes():
+    from touchloc.dnf import count_surfaces
+    from touchloc.hardware.dnf_features import emulated_rotation
+
+    ds = emulated_rotation(6, turns=2.0, under_estimate=0.06, rng=1)
+    assert ds.n_surfaces == 6 and len(ds) > 150
+    # every sample went through DSACON32m bytes, blobs and the curved-pad normals: one per finger
+    counts = np.array([ds.angles(t).size for t in range(len(ds))])
+    assert np.all(counts == 3)
+    # in the object frame the normals pile up at the sides (within 3 deg: 10 % by chance)
+    rel = np.concatenate([ds.angles(t) - ds.true_orientation[t] for t in range(len(ds))])
+    per = np.pi / 3
+    off = np.abs((rel - np.pi / 6 + per / 2) % per - per / 2)
+    assert np.mean(off < np.radians(3.0)) > 0.25
+    # the odometry under-estimates: 6 % of two turns
+    assert ds.true_orientation[-1] - ds.odometry[-1] == pytest.approx(0.06 * ds.true_orientation[-1], rel=0.05)
+    tr = OrientationTracker()
+    est, mem = tr.run(ds, record=True)
+    assert np.all(np.isfinite(est)) and mem.shape == (len(ds), tr.n_sites)
+    assert count_surfaces(mem[-1]) >= 0
+    with pytest.raises(ValidationError):
+        emulated_rotation(2)

@@ -139,6 +139,10 @@ class TrackerParams:
     #: time constant of the optional evidence window, samples (leaky average of the codes;
     #: 0: the current sample only)
     input_window: float = 0.0
+    #: time constant (samples) of the input's gain control: the code is divided by a
+    #: running mean of its per-sample peak and multiplied by ``input_reference`` (0: off)
+    input_adapt: float = 0.0
+    input_reference: float = 0.75
     #: surface detection: fast, input driven (no peak without input)
     surface: FieldParams = FieldParams(tau=2.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                        c_inh=0.15, sigma_inh=np.radians(12.0))
@@ -244,6 +248,7 @@ class OrientationTracker:
         self.last_error = 0.0
         self._evidence = np.zeros(n)
         self._weight = 0.0
+        self._level = 0.0
 
     # -- state -------------------------------------------------------------------------
     @property
@@ -263,6 +268,7 @@ class OrientationTracker:
         self.trace.reset()
         self._evidence[:] = 0.0
         self._weight = 0.0
+        self._level = 0.0
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -298,8 +304,12 @@ class OrientationTracker:
         self._evidence *= self._leak
         self._weight *= self._leak
         if a.size:
-            self._evidence += population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0,
-                                              normalize=True)
+            code = population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0, normalize=True)
+            if p.input_adapt > 0:
+                peak = float(code.max())
+                self._level = peak if self._level == 0.0 else self._level + (peak - self._level) / p.input_adapt
+                code *= p.input_reference / max(self._level, 1e-3)
+            self._evidence += code
             self._weight += 1.0
         stim = (p.input_gain / max(self._weight, 1.0)) * self._evidence
         # mapping pathway
