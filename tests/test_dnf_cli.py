@@ -57,3 +57,18 @@ def test_compare_dnf_on_sparse_pad_normals(capsys):
 
     with pytest.raises(ValidationError, match="normals_per_contact"):
         run(["compare-dnf", "--objects", "4-gon", "--datasets", "1", "--normals", "41", "--no-plots"])
+
+
+def test_compare_dnf_on_the_emulated_hand(capsys):
+    rc = run(["compare-dnf", "--source", "emulator", "--objects", "6-gon", "--datasets", "1", "--turns", "0.5",
+              "--particles", "20", "--no-plots"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "1 data sets: 6-gon x 1" in out
+    assert "| 6-gon (6 sides) | DNF, corrected |" in out and "| 6-gon (6 sides) | particle filter |" in out
+
+
+def test_compare_dnf_adds_the_mapped_family(capsys):
+    rc = run(["compare-dnf", "--objects", "4-gon", "--datasets", "1", "--particles", "20", "--no-plots", "--mapped",
+              "--normals", "2"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "| 4-gon (4 sides) | 3-D map (tactile SLAM) |" in out

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ValidationError
+
 
 def register(sub) -> None:
     p = sub.add_parser("compare-dnf", help="DNF tracker vs histogram, uncorrected memory and particle filter",
@@ -20,6 +22,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated data sets")
     p.add_argument("--recording", nargs="+", metavar="FILE",
                    help="use recorded data sets (.csv or .npz, see docs/dnf.md) instead of simulated ones")
+    p.add_argument("--source", choices=["simulated", "emulator"], default="simulated",
+                   help="where the normals come from: the rotation generator (default) or the emulated hand's "
+                        "DSACON32m frames (blobs -> curved-pad normals; slower, a few seconds per data set)")
+    p.add_argument("--turns", type=float, default=4.0, help="turns per emulated data set (default 4)")
+    p.add_argument("--mapped", action="store_true",
+                   help="add the third family: the n-gon mapped in 3-D by tactile SLAM (seconds per data set; "
+                        "simulated data only)")
     p.add_argument("--particles", type=int, default=400, help="particles of the particle filter")
     p.add_argument("--normals", type=int, metavar="K",
                    help="simulate K blob normals per finger and sample from the curved pad (1..40), as a real "
@@ -68,10 +77,22 @@ def run_compare(args) -> int:
         knobs["noise"] = float(np.radians(args.noise))
     if args.drop:
         knobs["drop"] = args.drop
-    sets = _load(args) or standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)
+    sets = _load(args)
+    if sets is None and args.source == "emulator":
+        from ..hardware.dnf_features import emulated_rotation
+        from .data import OBJECTS
+
+        bad = [o for o in args.objects if o not in OBJECTS]
+        if bad:
+            raise ValidationError(f"unknown objects {bad}, expected some of {list(OBJECTS)}")
+        sets = {o: [emulated_rotation(OBJECTS[o], turns=args.turns, rng=np.random.default_rng([args.seed, i]),
+                                       name=f"{o} #{i + 1}")
+                    for i in range(args.datasets)] for o in args.objects}
+    if sets is None:
+        sets = standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)
     n = sum(len(v) for v in sets.values())
     print(f"{n} data sets: " + ", ".join(f"{k} x {len(v)}" for k, v in sets.items()))
-    results = compare(sets, default_estimators(particles=args.particles, rng=args.seed))
+    results = compare(sets, default_estimators(particles=args.particles, mapped=args.mapped, rng=args.seed))
     print()
     print(summary_table(results))
     if not args.no_plots:

@@ -143,6 +143,13 @@ class TrackerParams:
     #: running mean of its per-sample peak and multiplied by ``input_reference`` (0: off)
     input_adapt: float = 0.0
     input_reference: float = 0.75
+    #: stroke window: average the codes over the current stroke (object frame), starting
+    #: afresh when the odometry stands still (a regrasp: the hand lets go and moves back
+    #: while its estimate of the object's rotation stays); the average is divided by at
+    #: least ``stroke_min`` samples, so a stroke's first samples count less
+    stroke_window: bool = False
+    stroke_min: float = 3.0
+    stroke_still: float = 1e-6
     #: surface detection: fast, input driven (no peak without input)
     surface: FieldParams = FieldParams(tau=2.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                        c_inh=0.15, sigma_inh=np.radians(12.0))
@@ -249,6 +256,7 @@ class OrientationTracker:
         self._evidence = np.zeros(n)
         self._weight = 0.0
         self._level = 0.0
+        self._prev_odo = None
 
     # -- state -------------------------------------------------------------------------
     @property
@@ -269,6 +277,7 @@ class OrientationTracker:
         self._evidence[:] = 0.0
         self._weight = 0.0
         self._level = 0.0
+        self._prev_odo = None
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -301,8 +310,14 @@ class OrientationTracker:
         p = self.params
         # input stage: mean code in the object frame (corrected estimate), averaged over
         # the evidence window; an empty sample only lets the evidence leak
-        self._evidence *= self._leak
-        self._weight *= self._leak
+        if p.stroke_window:
+            if self._prev_odo is None or abs(self.odometry - self._prev_odo) <= p.stroke_still:
+                self._evidence[:] = 0.0
+                self._weight = 0.0
+            self._prev_odo = self.odometry
+        else:
+            self._evidence *= self._leak
+            self._weight *= self._leak
         if a.size:
             code = population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0, normalize=True)
             if p.input_adapt > 0:
@@ -311,7 +326,7 @@ class OrientationTracker:
                 code *= p.input_reference / max(self._level, 1e-3)
             self._evidence += code
             self._weight += 1.0
-        stim = (p.input_gain / max(self._weight, 1.0)) * self._evidence
+        stim = (p.input_gain / max(self._weight, p.stroke_min if p.stroke_window else 1.0)) * self._evidence
         # mapping pathway
         f_s = self.surface.step(stim)
         P = self.trace.P
