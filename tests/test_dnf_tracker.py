@@ -127,3 +127,18 @@ def test_run_matches_step_by_step():
     for t, (ang, odo) in enumerate(ds.samples()):
         assert b.step(ang, odo) == pytest.approx(est[t], abs=1e-12)
     np.testing.assert_allclose(mem[-1], b.memory)
+
+
+def test_integral_action_learns_the_odometrys_under_estimate():
+    from touchloc.dnf import generate_rotation_dataset
+
+    # the odometry reports 92 % of each turn: the right rate is 0.08 / 0.92 = 0.087 per radian
+    ds = generate_rotation_dataset(6, revolutions=3.0, under_estimate=(0.08, 0.08), slip_std=0.0, rng=0)
+    tr = OrientationTracker()
+    tr.run(ds)
+    assert 0.02 < tr.rate < 0.12
+    off = OrientationTracker(rate_gain=0.0)
+    off.run(ds)
+    assert off.rate == 0.0
+    tr.reset()
+    assert tr.rate == 0.0

@@ -33,7 +33,11 @@ tracking (fast)
     along the first dimension, matched side along the second) -> read out along the
     diagonal into the error field, whose peak position (relative to its centre) is the
     orientation error. The estimate is corrected by a fraction of it every sample, and the
-    corrected estimate transforms the next sample's normals into the object frame.
+    corrected estimate transforms the next sample's normals into the object frame. The
+    same error also adjusts a rate - a correction per radian of odometry - through which
+    the estimate follows the odometry's increments (integral action: a hand that
+    systematically under-estimates the rotation, seed 000, II-B, is corrected between
+    read-outs too, instead of only after its error has built up).
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
@@ -133,30 +137,23 @@ class TrackerParams:
 
     n_sites: int = 360
     #: filter bank tuning width; input at a side seen steadily (the code is a mean over
-    #: the normals, so it does not grow with their number)
-    tuning_width: float = np.radians(4.0)
+    #: the normals, so it does not grow with their number). 5 deg: wide enough that 1-2
+    #: blob normals with 3-6 deg of scatter still reach threshold
+    tuning_width: float = np.radians(5.0)
     input_gain: float = 16.0
     #: time constant of the optional evidence window, samples (leaky average of the codes;
     #: 0: the current sample only)
     input_window: float = 0.0
-    #: time constant (samples) of the input's gain control: the code is divided by a
-    #: running mean of its per-sample peak and multiplied by ``input_reference`` (0: off)
-    input_adapt: float = 0.0
-    input_reference: float = 0.75
-    #: stroke window: average the codes over the current stroke (object frame), starting
-    #: afresh when the odometry stands still (a regrasp: the hand lets go and moves back
-    #: while its estimate of the object's rotation stays); the average is divided by at
-    #: least ``stroke_min`` samples, so a stroke's first samples count less
-    stroke_window: bool = False
-    stroke_min: float = 3.0
-    stroke_still: float = 1e-6
     #: surface detection: fast, input driven (no peak without input)
     surface: FieldParams = FieldParams(tau=2.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                        c_inh=0.15, sigma_inh=np.radians(12.0))
-    #: map field (slow) and its memory trace (eq. 2)
-    map: FieldParams = FieldParams(tau=2.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
+    #: map field (slow: 8 samples, a stroke) and its memory trace (eq. 2). A side holds
+    #: still in the object frame through a stroke and drives it up; the normal of a round
+    #: object, which points at the finger, slides through the object frame and does not
+    #: stay on any site long enough
+    map: FieldParams = FieldParams(tau=8.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
                                    c_inh=0.2, sigma_inh=np.radians(12.0))
-    surface_to_map: float = 6.0
+    surface_to_map: float = 10.0
     memory_to_map: float = 2.0
     memory_tau: float = 1.0
     memory_build: float = 0.2
@@ -178,6 +175,10 @@ class TrackerParams:
     error_window: float = np.radians(25.0)
     #: fraction of the read-out error corrected per sample
     correction_gain: float = 0.25
+    #: integral action on the odometry's scale: every read-out error also changes a rate
+    #: (correction per radian of odometry) by ``-rate_gain * error``, and the correction
+    #: follows the odometry's increments at that rate (0: off)
+    rate_gain: float = 0.01
     #: whether the estimate is corrected (False: the "memory trace without correction")
     correct: bool = True
 
@@ -255,14 +256,20 @@ class OrientationTracker:
         self.last_error = 0.0
         self._evidence = np.zeros(n)
         self._weight = 0.0
-        self._level = 0.0
-        self._prev_odo = None
+        self._rate = 0.0
+        self._last_odo = None
 
     # -- state -------------------------------------------------------------------------
     @property
     def orientation(self) -> float:
         """Corrected estimate of the object's accumulated rotation, rad."""
         return self.odometry + self.correction
+
+    @property
+    def rate(self) -> float:
+        """Learnt correction per radian of odometry (the odometry's relative error; 0 without
+        ``rate_gain``)."""
+        return self._rate
 
     @property
     def memory(self) -> np.ndarray:
@@ -276,8 +283,8 @@ class OrientationTracker:
         self.trace.reset()
         self._evidence[:] = 0.0
         self._weight = 0.0
-        self._level = 0.0
-        self._prev_odo = None
+        self._rate = 0.0
+        self._last_odo = None
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -308,25 +315,18 @@ class OrientationTracker:
 
     def _step(self, a: np.ndarray) -> None:
         p = self.params
+        if p.rate_gain and self._last_odo is not None:
+            self.correction += self._rate * (self.odometry - self._last_odo)
+        self._last_odo = self.odometry
         # input stage: mean code in the object frame (corrected estimate), averaged over
         # the evidence window; an empty sample only lets the evidence leak
-        if p.stroke_window:
-            if self._prev_odo is None or abs(self.odometry - self._prev_odo) <= p.stroke_still:
-                self._evidence[:] = 0.0
-                self._weight = 0.0
-            self._prev_odo = self.odometry
-        else:
-            self._evidence *= self._leak
-            self._weight *= self._leak
+        self._evidence *= self._leak
+        self._weight *= self._leak
         if a.size:
-            code = population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0, normalize=True)
-            if p.input_adapt > 0:
-                peak = float(code.max())
-                self._level = peak if self._level == 0.0 else self._level + (peak - self._level) / p.input_adapt
-                code *= p.input_reference / max(self._level, 1e-3)
-            self._evidence += code
+            self._evidence += population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0,
+                                              normalize=True)
             self._weight += 1.0
-        stim = (p.input_gain / max(self._weight, p.stroke_min if p.stroke_window else 1.0)) * self._evidence
+        stim = (p.input_gain / max(self._weight, 1.0)) * self._evidence
         # mapping pathway
         f_s = self.surface.step(stim)
         P = self.trace.P
@@ -348,6 +348,7 @@ class OrientationTracker:
                 err = float(np.angle(z))
                 self.last_error = err
                 self.correction -= p.correction_gain * err
+                self._rate -= p.rate_gain * err
             else:
                 self.last_error = 0.0
         self.n_steps += 1
