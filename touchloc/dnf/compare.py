@@ -51,6 +51,11 @@ def default_estimators(*, particles: int = 400, mapped: bool = False, mapped_eve
         odometry)``, ``orientation`` and ``memory`` (an activation over orientation for
         :func:`count_surfaces`) can join the comparison.
     """
+    if not isinstance(mapped, (bool, np.bool_)):
+        raise ValidationError(f"mapped must be True or False, got {mapped!r}")
+    if isinstance(mapped_every, (bool, np.bool_)) or not isinstance(mapped_every, (int, np.integer)) \
+            or not 1 <= mapped_every <= 100:
+        raise ValidationError(f"mapped_every must be an int in [1, 100] (samples), got {mapped_every!r}")
     out = {
         "histogram": lambda: HistogramEstimator(360),
         "memory, uncorrected": lambda: OrientationTracker(correct=False),
