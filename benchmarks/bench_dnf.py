@@ -175,7 +175,8 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
 def _families(quick: bool) -> str:
     """All three families (neural fields, particle filter, 3-D map) on the same data sets."""
     from touchloc.dnf import SEED_FAITHFUL, generate_rotation_dataset
-    from touchloc.dnf.compare import MAPPED, compare, default_estimators, summary_table
+    from touchloc.dnf.compare import MAPPED, compare, summary_table
+    from touchloc.experiments.ngon import estimators_with_map
 
     objects = [("6-gon", 6), ("8-gon", 8), ("round", 0)] if quick else \
         [("4-gon", 4), ("5-gon", 5), ("6-gon", 6), ("8-gon", 8), ("round", 0)]
@@ -186,7 +187,7 @@ def _families(quick: bool) -> str:
         sets = {o: [generate_rotation_dataset(n, rng=np.random.default_rng([5, n, i]), name=f"{o} #{i + 1}", **kw)
                     for i in range(1)] for o, n in objects}
         t0 = time.perf_counter()
-        res = compare(sets, default_estimators(rng=0, mapped=True), progress_bar=False)
+        res = compare(sets, estimators_with_map(rng=0), progress_bar=False)
         dt = time.perf_counter() - t0
         mapped_s = np.mean([r.seconds_per_step * len(r.counts) for o in res for r in res[o][MAPPED]])
         out += [f"On {title}; one data set per object, 4 turns (seeds `[5, n, 0]`); {dt:.0f} s for all "
@@ -198,7 +199,7 @@ def _families(quick: bool) -> str:
 def _emulated(quick: bool) -> str:
     """The tracker and its rivals on normals recorded from the emulated hand's bytes."""
     from touchloc.dnf.compare import compare, default_estimators, summary_table
-    from touchloc.hardware.dnf_features import emulated_rotation
+    from touchloc.experiments.ngon import emulated_rotation
 
     objects = [("6-gon", 6), ("8-gon", 8)] if quick else [("4-gon", 4), ("5-gon", 5), ("6-gon", 6), ("8-gon", 8)]
     t0 = time.perf_counter()
@@ -206,7 +207,7 @@ def _emulated(quick: bool) -> str:
             for o, n in objects}
     rec = time.perf_counter() - t0
     res = compare(sets, default_estimators(rng=0), progress_bar=False)
-    return ("`touchloc.hardware.dnf_features.emulated_rotation(n, turns=4, rng=i)`: an n-gon prism "
+    return ("`touchloc.experiments.ngon.emulated_rotation(n, turns=4, rng=i)`: an n-gon prism "
             "(sides 18 mm from its axis) between the three distal pads of the emulated SDH-2, turned in "
             "strokes of 25-40 deg with the fingers, regrasped, odometry 6 % short. Every sample is a "
             "DSACON32m frame rendered by the emulator (pads curved across the finger, 20 mm radius), read "

@@ -68,7 +68,8 @@ GRASP = np.radians([60, 4, -4, 4, -4, 4, -4])
 
 @pytest.mark.parametrize("delta_deg", [-10.0, 0.0, 5.0])
 def test_curved_pad_reads_the_side_normal(delta_deg):
-    from touchloc.hardware.dnf_features import CurvedPadKinematics, _close_on
+    from touchloc.experiments.ngon import _close_on
+    from touchloc.hardware.dnf_features import CurvedPadKinematics
 
     kin = CurvedPadKinematics(0.02)
     world = _side_pressed(np.radians(delta_deg), kin)
@@ -88,7 +89,7 @@ def test_curved_pad_reads_the_side_normal(delta_deg):
 
 def test_tracker_runs_on_the_emulated_hands_bytes():
     from touchloc.dnf import count_surfaces
-    from touchloc.hardware.dnf_features import emulated_rotation
+    from touchloc.experiments.ngon import emulated_rotation
 
     ds = emulated_rotation(6, turns=2.0, under_estimate=0.06, rng=1)
     assert ds.n_surfaces == 6 and len(ds) > 150

@@ -5,7 +5,8 @@ import pytest
 
 from touchloc.dnf import count_surfaces, generate_rotation_dataset
 from touchloc.dnf.compare import MAPPED, default_estimators, orientation_error, run_estimator
-from touchloc.dnf.mapped import MappedPrismEstimator, prism_mesh, section_normal_density
+from touchloc.experiments.ngon import (MappedPrismEstimator, estimators_with_map, prism_mesh,
+                                      section_normal_density)
 from touchloc.errors import ValidationError
 
 
@@ -58,7 +59,7 @@ def test_round_cylinder_maps_no_sides():
 
 def test_mapped_family_joins_on_request_and_checks_its_input():
     assert MAPPED not in default_estimators()
-    assert MAPPED in default_estimators(mapped=True, rng=0)
+    assert MAPPED in estimators_with_map(rng=0)
     est = MappedPrismEstimator()
     with pytest.raises(ValidationError, match="bind"):
         est.step([0.1], 0.0)

@@ -79,7 +79,7 @@ def run_compare(args) -> int:
         knobs["drop"] = args.drop
     sets = _load(args)
     if sets is None and args.source == "emulator":
-        from ..hardware.dnf_features import emulated_rotation
+        from ..experiments.ngon import emulated_rotation
         from .data import OBJECTS
 
         bad = [o for o in args.objects if o not in OBJECTS]
@@ -92,7 +92,13 @@ def run_compare(args) -> int:
         sets = standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)
     n = sum(len(v) for v in sets.values())
     print(f"{n} data sets: " + ", ".join(f"{k} x {len(v)}" for k, v in sets.items()))
-    results = compare(sets, default_estimators(particles=args.particles, mapped=args.mapped, rng=args.seed))
+    if args.mapped:
+        from ..experiments.ngon import estimators_with_map
+
+        estimators = estimators_with_map(particles=args.particles, rng=args.seed)
+    else:
+        estimators = default_estimators(particles=args.particles, rng=args.seed)
+    results = compare(sets, estimators)
     print()
     print(summary_table(results))
     if not args.no_plots:

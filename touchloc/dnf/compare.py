@@ -5,7 +5,7 @@ Reproduces seed 000's evaluation (section V): the number of detected sides over 
 three estimators' memories over time (Fig. 5), plus the orientation error over time and
 the time per step. Three families are compared: the neural fields of seed 000 (with its
 two baselines), a particle filter over the orientation, and the n-gon mapped in 3-D by
-tactile SLAM (:class:`~touchloc.dnf.mapped.MappedPrismEstimator`, ``mapped=True``).
+tactile SLAM (:mod:`touchloc.experiments.ngon`).
 """
 
 from __future__ import annotations
@@ -35,14 +35,12 @@ ESTIMATOR_COLORS = {"histogram": "tab:blue", "memory, uncorrected": "tab:green",
 MAPPED = "3-D map (tactile SLAM)"
 
 
-def default_estimators(*, particles: int = 400, mapped: bool = False, mapped_every: int = 4, rng=None) -> dict:
+def default_estimators(*, particles: int = 400, rng=None) -> dict:
     """Factories of the estimators, keyed by display name.
 
-    ``rng`` seeds the particle filter and the mapped prism (an int gives every run the
-    same seed, so results are reproducible). With ``mapped`` the third family joins: the
-    n-gon mapped in 3-D by tactile SLAM, touching on every ``mapped_every``-th sample
-    (:class:`~touchloc.dnf.mapped.MappedPrismEstimator`; seconds per data set, not
-    milliseconds, and it needs simulated data).
+    ``rng`` seeds the particle filter (an int gives every run the same seed, so results
+    are reproducible). The third family, the n-gon mapped in 3-D by tactile SLAM, joins
+    through :func:`touchloc.experiments.ngon.estimators_with_map`.
 
     Returns
     -------
@@ -51,21 +49,12 @@ def default_estimators(*, particles: int = 400, mapped: bool = False, mapped_eve
         odometry)``, ``orientation`` and ``memory`` (an activation over orientation for
         :func:`count_surfaces`) can join the comparison.
     """
-    if not isinstance(mapped, (bool, np.bool_)):
-        raise ValidationError(f"mapped must be True or False, got {mapped!r}")
-    if isinstance(mapped_every, (bool, np.bool_)) or not isinstance(mapped_every, (int, np.integer)) \
-            or not 1 <= mapped_every <= 100:
-        raise ValidationError(f"mapped_every must be an int in [1, 100] (samples), got {mapped_every!r}")
     out = {
         "histogram": lambda: HistogramEstimator(360),
         "memory, uncorrected": lambda: OrientationTracker(correct=False),
         "DNF, corrected": lambda: OrientationTracker(),
         "particle filter": lambda: ParticleOrientationEstimator(particles, rng=rng),
     }
-    if mapped:
-        from .mapped import MappedPrismEstimator
-
-        out[MAPPED] = lambda: MappedPrismEstimator(every=mapped_every, rng=rng)
     return out
 
 

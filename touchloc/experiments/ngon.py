@@ -1,4 +1,7 @@
-"""A third family for the DNF comparison: the rotating n-gon mapped in 3-D by tactile SLAM.
+"""The rotating n-gon of seed 000 across the layers: mapped in 3-D by tactile SLAM, and recorded
+from the emulated hand's tactile bytes.
+
+A third family for the DNF comparison: the rotating n-gon mapped in 3-D by tactile SLAM.
 
 Seed 000 solves one rotational degree of freedom of an n-gon with neural fields. The same
 experiment is a special case of tactile SLAM in 3-D (:class:`touchloc.mapping.TactileSLAM`):
@@ -30,9 +33,9 @@ Orientation. :attr:`orientation` is the SLAM pose's rotation about the axis (the
 frame is the object's frame at the first update, like the tracker's), carried forward
 with the odometry between SLAM updates.
 
-This module imports :mod:`touchloc.mapping` and :mod:`touchloc.planners` when an
-estimator is built, not at import time, so that :mod:`touchloc.dnf` itself keeps to
-models and belief.
+:func:`emulated_rotation` records the same experiment through the whole hardware path
+(emulator bytes, driver, blobs, normals). Both live here, on top of the layers, because
+they join :mod:`touchloc.dnf` with :mod:`touchloc.mapping` and :mod:`touchloc.hardware`.
 """
 
 from __future__ import annotations
@@ -41,10 +44,12 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from .._util import as_rng
+from ..dnf.compare import MAPPED, default_estimators
+from ..dnf.tracker import as_angles, as_odometry
 from ..errors import ValidationError
-from .tracker import as_angles, as_odometry
 
-__all__ = ["MappedPrismEstimator", "prism_mesh", "section_normal_density"]
+__all__ = ["MappedPrismEstimator", "emulated_rotation", "estimators_with_map", "prism_mesh",
+           "section_normal_density"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -68,11 +73,6 @@ def prism_mesh(n_sides: int, *, diameter: float = 0.06, height: float = 0.06):
     return MeshObject(m, name=f"{n_sides}-gon prism" if n_sides else "round cylinder")
 
 
-def _rz(a: float) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(a), np.sin(a)
-    T[:2, :2] = [[c, -s], [s, c]]
-    return T
 
 
 def section_normal_density(radius, n_bins: int = 360, *, sigma: float = np.radians(3.0)) -> np.ndarray:
@@ -283,3 +283,166 @@ class MappedPrismEstimator:
         self.n_updates += 1
         self._dirty = True
         return self.orientation
+
+
+def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.018, step: float = np.radians(4.0),
+                      stroke=(np.radians(25.0), np.radians(40.0)), under_estimate: float = 0.06, depth: float = 0.0008,
+                      slip_std: float = 0.0, pad_radius: float = 0.02, rate_hz: float = 2.5,
+                      name: str = "", rng=None):
+    """Record seed 000's rotation experiment from the emulated hand's tactile bytes.
+
+    An extruded n-gon (a round cylinder for 0) stands on the hand's axis between the three
+    distal pads (base angle 60 degrees, distal links parallel to the axis), which are
+    curved across the finger with radius ``pad_radius`` (:class:`CurvedPadKinematics`).
+    At every grasp each finger closes until its pad presses ``depth`` into the object.
+    The hand turns it in strokes: during a stroke the fingers turn with the object
+    about its axis, then they let go and regrasp at their starting place, the object
+    keeping its rotation (plus an unobserved ``N(0, slip_std)``). Every sample the
+    :class:`~touchloc.hardware.emulator.DSACON32mEmulator` renders the pads' pressure
+    into bytes, the :class:`~touchloc.hardware.DSACON32m` driver reads them over a
+    loopback TCP socket, and :func:`frame_normal_angles` turns the frame into world-frame
+    normal angles about the axis. The odometry is the hand's turn under-estimated by
+    ``under_estimate`` (seed 000, II-B).
+
+    A finger that lands on a side keeps the side's normal through the stroke (it turns
+    with the object); one that lands on a corner rocks on it. On a round cylinder the
+    fingers, turning with the object, also keep their normal through a stroke, so the
+    round object looks like a many-sided one to this set-up.
+
+    Parameters
+    ----------
+    n_sides : int
+        Number of sides (>= 3), or 0 for a round cylinder.
+    turns : float
+        Total rotation, turns.
+    inradius : float
+        Distance of the sides from the axis, m.
+    depth : float
+        How far each pad presses into the object at a grasp, m.
+    step : float
+        Mean rotation per sample, rad (each drawn within +-30 %).
+    stroke : (float, float)
+        Range of the rotation per stroke, rad.
+    under_estimate : float
+        Relative under-estimate of the odometry.
+    slip_std : float
+        Unobserved rotation at each regrasp, rad.
+    pad_radius : float
+        Radius of the pads' curvature across the finger (m), in the emulated world and
+        in :func:`frame_normal_angles`.
+    rate_hz : float
+        Sampling rate (for the time stamps).
+    name : str
+    rng : None, int or numpy Generator
+
+    Returns
+    -------
+    touchloc.dnf.RotationDataset
+        With ``true_orientation`` and ``n_surfaces``.
+    """
+    import serial
+    import trimesh
+
+    from .._util import as_rng
+    from ..dnf.data import RotationDataset
+    from ..hardware.dnf_features import CurvedPadKinematics, frame_normal_angles
+    from ..hardware.dsacon import DSACON32m
+    from ..hardware.emulator import DSACON32mEmulator, SimWorld, TCPServer
+    from ..models import MeshObject
+
+    if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
+        raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
+    if not (np.isfinite(turns) and 0 < turns <= 20):
+        raise ValidationError(f"turns must be in (0, 20], got {turns!r}")
+    if not (np.isfinite(inradius) and 0.012 <= inradius <= 0.03):
+        raise ValidationError(f"inradius must lie in [0.012, 0.03] m (the fingers' reach), got {inradius!r}")
+    if not (np.isfinite(depth) and 0 < depth <= 0.002):
+        raise ValidationError(f"depth must lie in (0, 2 mm] (m), got {depth!r}")
+    if not (np.isfinite(step) and 0 < step < np.radians(20)):
+        raise ValidationError(f"step must be in (0, 20 deg) rad, got {step!r}")
+    lo, hi = (float(x) for x in stroke)
+    if not (0 < lo <= hi < np.pi):
+        raise ValidationError(f"stroke must be (lo, hi) rad with 0 < lo <= hi < pi, got {stroke!r}")
+    if not (np.isfinite(under_estimate) and -0.5 < under_estimate < 0.5):
+        raise ValidationError(f"under_estimate must be in (-0.5, 0.5), got {under_estimate!r}")
+    rng = as_rng(rng)
+    th = np.radians(4.0)
+    angles = np.array([np.radians(60.0), th, -th, th, -th, th, -th])
+    diameter = 2 * inradius / np.cos(np.pi / n_sides) if n_sides else 2 * inradius
+    mesh = trimesh.creation.cylinder(radius=diameter / 2, height=0.06, sections=int(n_sides) if n_sides else 96)
+    obj = MeshObject(mesh, name=f"{n_sides}-gon prism" if n_sides else "round cylinder")
+    z = 0.136                                    # middle of the distal pads
+    kin = CurvedPadKinematics(pad_radius)
+    state = {"world": SimWorld(obj, _rz(0.0, z), kinematics=kin)}
+    grasp = angles
+    emu = DSACON32mEmulator(frame_source=lambda: state["world"].pressures(grasp))
+    srv = TCPServer(emu).start()
+    port = serial.serial_for_url(srv.url, timeout=0.05)
+    seqs, odo, truth = [], [], []
+    theta = est = 0.0
+    try:
+        dev = DSACON32m(port, timeout=1.0, open_timeout=1.0)
+        while theta < turns * 2 * np.pi:
+            theta += rng.normal(0.0, slip_std) if slip_std > 0 else 0.0
+            rot, phi = rng.uniform(lo, hi), 0.0
+            grasp = _close_on(SimWorld(obj, _rz(theta, z), kinematics=kin), angles, depth)
+            while phi < rot and theta < turns * 2 * np.pi:
+                H = _rz(phi)
+                state["world"] = SimWorld(obj, _rz(theta, z), H, kinematics=kin)
+                frame = dev.read_frame()
+                a, _ = frame_normal_angles(frame, grasp, axis=[0.0, 0.0, 1.0], reference=[1.0, 0.0, 0.0],
+                                           pad_radius=pad_radius, hand_pose=H)
+                seqs.append(a)
+                odo.append(est)
+                truth.append(theta)
+                d = step * rng.uniform(0.7, 1.3)
+                phi += d
+                theta += d
+                est += d * (1.0 - under_estimate)
+    finally:
+        port.close()
+        srv.close()
+    T = len(seqs)
+    index = np.concatenate([np.full(a.size, i) for i, a in enumerate(seqs)]).astype(np.int64)
+    return RotationDataset(np.arange(T) / rate_hz, np.array(odo), np.concatenate(seqs), index,
+                           true_orientation=np.array(truth), n_surfaces=int(n_sides),
+                           name=name or (f"{n_sides}-gon (emulated hand)" if n_sides else "round (emulated hand)"))
+
+
+def _rz(a: float, z: float = 0.0) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(a), np.sin(a)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[2, 3] = z
+    return T
+
+
+def _close_on(world, angles, depth: float) -> np.ndarray:
+    """Close each finger (proximal +a, distal -a: the distal pad stays parallel to the axis)
+    until its distal pad presses ``depth`` into the object: a guarded grasp."""
+    out = angles.copy()
+    for f, (p, d) in enumerate(((1, 2), (3, 4), (5, 6))):
+        lo, hi = np.radians(-6.0), np.radians(12.0)
+        for _ in range(14):
+            mid = 0.5 * (lo + hi)
+            out[p], out[d] = mid, -mid
+            if float(world.penetration(out, (2 * f + 1,))[0].max()) > depth:
+                hi = mid
+            else:
+                lo = mid
+        out[p], out[d] = lo, -lo
+    return out
+
+
+def estimators_with_map(*, particles: int = 400, every: int = 4, rng=None) -> dict:
+    """The DNF comparison's estimators plus the third family, the n-gon mapped in 3-D.
+
+    ``every``: the map touches on every ``every``-th sample (seconds per data set, not
+    milliseconds; it needs simulated data, whose true rotation turns the prism).
+    """
+    if isinstance(every, (bool, np.bool_)) or not isinstance(every, (int, np.integer)) or not 1 <= every <= 100:
+        raise ValidationError(f"every must be an int in [1, 100] (samples), got {every!r}")
+    out = default_estimators(particles=particles, rng=rng)
+    out[MAPPED] = lambda: MappedPrismEstimator(every=int(every), rng=rng)
+    return out
+
