@@ -26,9 +26,12 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .._cache import numba_cache_enabled
+
 _LEAF = 4
 _STACK = 128
-_NB = dict(cache=True, fastmath=False, nogil=True)
+# cache=: compiled code kept on disk when numba has a writable place for it (see touchloc._cache)
+_NB = dict(cache=numba_cache_enabled(__file__), fastmath=False, nogil=True)
 
 
 # ---------------------------------------------------------------------------------------

@@ -280,12 +280,16 @@ class MeshObject:
         cost (sigma_pos^2 / sigma_nor^2, in m^2); 0 for position-only queries. The tree's
         topology depends on it (rounded to 2 significant digits); its bounds do not.
         """
-        from ._kernels import build_bvh
+        from .._cache import cached_structure
+        from . import _kernels
+        from ._kernels import BVH, build_bvh
 
         key = ("bvh", float(f"{normal_weight:.2g}"))
         tree = self._cache.get(key)
         if tree is None:
-            tree = build_bvh(self.triangles, self.face_normals, np.sqrt(key[1]))
+            tree = cached_structure("bvh", self, {"normal_weight": key[1]},  # on disk when slow to build
+                                    lambda: build_bvh(self.triangles, self.face_normals, np.sqrt(key[1])),
+                                    BVH, code=(_kernels,))
             self._cache[key] = tree
         return tree
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._cache import cached_structure
 from .._util import as_poses
 from .._validate import as_count, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
@@ -120,7 +121,11 @@ class ProximityModel(MeasurementModel):
             lo = lo - self.grid_margin
             hi = hi + self.grid_margin
             tree = self.obj.bvh(w)
-            grid = K.build_candidate_grid(tree, lo, hi, self.grid_cell, w, self.grid_normals)
+            grid = cached_structure(  # on disk: keyed by mesh content, parameters and builder code
+                "candidate_grid", self.obj, dict(w=w, lo=lo, hi=hi, cell=self.grid_cell, normals=self.grid_normals,
+                                                  tree_order=tree.face_id),
+                lambda: K.build_candidate_grid(tree, lo, hi, self.grid_cell, w, self.grid_normals),
+                K.CandidateGrid, code=(K,))
             self.obj._cache[key] = grid
         return grid
 
