@@ -1,0 +1,268 @@
+"""The on-disk caches: per-mesh structures (touchloc._cache) and numba's kernel cache."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+from touchloc import _cache
+from touchloc.data import load_object, mesh_path
+from touchloc.models import MeshObject, ProximityModel
+from touchloc.models import _kernels as K
+
+# a coarse grid: builds in a fraction of a second, same code path as the default
+CELL = 0.012
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """A fresh cache directory; every structure is written, however fast its build."""
+    d = tmp_path / "cache"
+    monkeypatch.setenv("TOUCHLOC_CACHE_DIR", str(d))
+    monkeypatch.setattr(_cache, "MIN_SAVE_SECONDS", 0.0)
+    _cache.stats.clear()
+    return d
+
+
+def _mug(scale=1.0):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the mug is open: warned about and tested elsewhere
+        return MeshObject.from_file(mesh_path("mug"), scale=scale, name="mug")
+
+
+def _quiet(f, *a):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return f(*a)
+
+
+def _grid(obj, cell=CELL, sigma_nor=0.3):
+    model = ProximityModel(obj, 0.003, sigma_nor, grid_cell=cell)
+    return model, model._grid(model._weight(True))
+
+
+def _files(d):
+    return sorted(p.relative_to(d) for p in d.rglob("*.npz"))
+
+
+def _same(a, b):
+    assert type(a) is type(b)
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and np.array_equal(x, y), f.name
+        else:
+            assert x == y and type(x) is type(y), f.name
+
+
+def test_round_trip_gives_identical_grid_and_costs(cache, rng):
+    model1, g1 = _grid(_mug())
+    assert _cache.stats["miss"] >= 1 and _cache.stats["write"] >= 1 and _cache.stats["hit"] == 0
+    files = _files(cache)
+    assert any(str(f).startswith("candidate_grid/") for f in files)
+
+    model2, g2 = _grid(_mug())  # a new object: nothing cached in memory
+    assert _cache.stats["hit"] >= 1
+    assert _files(cache) == files
+    _same(g1, g2)
+    P = rng.normal(scale=0.05, size=(500, 3))
+    N = rng.normal(size=(500, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    np.testing.assert_array_equal(model1.query_costs(P, N, method="fast"), model2.query_costs(P, N, method="fast"))
+
+
+def test_bvh_round_trip(cache):
+    t1 = _mug().bvh(0.01)
+    t2 = _mug().bvh(0.01)
+    assert _cache.stats["hit"] == 1
+    _same(t1, t2)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "empty", "other key"])
+def test_damaged_file_is_rebuilt_with_a_warning(cache, damage):
+    _, g1 = _grid(_mug())
+    (path,) = [cache / f for f in _files(cache) if str(f).startswith("candidate_grid/")]
+    data = path.read_bytes()
+    if damage == "garbage":
+        path.write_bytes(b"not a cache file" * 10)
+    elif damage == "truncated":
+        path.write_bytes(data[: len(data) // 2])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    else:  # a valid file whose stored key is not the one its name promises
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays["meta_key"] = np.asarray("0" * 64)
+        with open(path, "wb") as f:
+            np.savez(f, **arrays)
+    with pytest.warns(_cache.CacheWarning, match="rebuilding"):
+        _, g2 = _grid(_mug())
+    assert _cache.stats["corrupt"] == 1
+    _same(g1, g2)
+    # the rebuilt structure replaced the damaged file: the next process reads it cleanly
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", _cache.CacheWarning)
+        _, g3 = _grid(_mug())
+    assert _cache.stats["hit"] >= 1
+    _same(g1, g3)
+
+
+def test_key_changes_with_mesh_and_parameters(cache):
+    mug = _mug()
+    base = dict(w=0.01, cell=CELL)
+    k = _cache.structure_key("candidate_grid", mug, base, (K,))
+    assert k == _cache.structure_key("candidate_grid", _mug(), dict(base), (K,))  # same content, new object
+    others = [
+        _cache.structure_key("candidate_grid", _mug(scale=0.5), base, (K,)),  # scaled mesh
+        _cache.structure_key("candidate_grid", _quiet(load_object, "can"), base, (K,)),  # another mesh
+        _cache.structure_key("candidate_grid", mug, dict(base, cell=CELL * 1.0000001), (K,)),
+        _cache.structure_key("candidate_grid", mug, dict(base, w=0.0), (K,)),
+        _cache.structure_key("bvh", mug, base, (K,)),  # another kind
+        _cache.structure_key("candidate_grid", mug, base, ()),  # other builder code
+    ]
+    assert len({k, *others}) == len(others) + 1
+    # and on disk: other parameters write another file, the same ones do not
+    _grid(mug)
+    n = len(_files(cache))
+    _grid(_mug())
+    assert len(_files(cache)) == n
+    _grid(_mug(), cell=CELL * 1.25)
+    _grid(_mug(), sigma_nor=0.2)
+    assert len([f for f in _files(cache) if str(f).startswith("candidate_grid/")]) == 3
+
+
+def test_key_changes_when_format_version_changes(cache, monkeypatch):
+    mug = _mug()
+    k = _cache.structure_key("bvh", mug, {"w": 1.0})
+    monkeypatch.setattr(_cache, "FORMAT_VERSION", _cache.FORMAT_VERSION + 1)
+    assert _cache.structure_key("bvh", mug, {"w": 1.0}) != k
+
+
+@pytest.mark.parametrize("value", ["off", "OFF", "0", "none"])
+def test_off_disables_the_cache(tmp_path, monkeypatch, value):
+    monkeypatch.setenv("TOUCHLOC_CACHE_DIR", value)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setattr(_cache, "MIN_SAVE_SECONDS", 0.0)
+    _cache.stats.clear()
+    assert _cache.cache_dir() is None
+    _grid(_mug())
+    _grid(_mug())
+    assert _cache.stats["hit"] == 0 and _cache.stats["write"] == 0 and _cache.stats["miss"] >= 2
+    assert list(tmp_path.rglob("*.npz")) == []
+    assert _cache.info()["dir"] is None and _cache.clear() == 0
+
+
+def test_default_directory_follows_xdg(tmp_path, monkeypatch):
+    monkeypatch.delenv("TOUCHLOC_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert _cache.cache_dir() == tmp_path / "xdg" / "touchloc"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert _cache.cache_dir() == tmp_path / "home" / ".cache" / "touchloc"
+
+
+def test_unwritable_directory_warns_and_still_computes(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    monkeypatch.setenv("TOUCHLOC_CACHE_DIR", str(blocker / "cache"))  # below a file: never writable
+    monkeypatch.setattr(_cache, "MIN_SAVE_SECONDS", 0.0)
+    _cache.stats.clear()
+    with pytest.warns(_cache.CacheWarning, match="could not write"):
+        _, g = _grid(_mug())
+    assert g.offsets[-1] == len(g.ids) > 0
+    assert _cache.stats["write_error"] >= 1 and _cache.stats["write"] == 0
+
+
+def test_info_and_clear(cache):
+    _grid(_mug())
+    inf = _cache.info()
+    assert inf["dir"] == cache and inf["kinds"]["candidate_grid"][0] == 1
+    assert inf["kinds"]["candidate_grid"][1] > 0
+    n = len(_files(cache))
+    assert _cache.clear() == n
+    assert _files(cache) == []
+
+
+# -- across processes ---------------------------------------------------------------------
+
+_CHILD = textwrap.dedent("""
+    import json, sys, warnings
+    warnings.simplefilter("ignore")
+    from touchloc import _cache
+    _cache.MIN_SAVE_SECONDS = 0.0
+    from touchloc.data import load_object
+    from touchloc.models import ProximityModel
+    import numpy as np
+    model = ProximityModel(load_object("mug"), 0.003, 0.3, grid_cell=%r)
+    c = model.query_costs(np.zeros((3, 3)), np.eye(3), method="fast")
+    print(json.dumps({"stats": dict(_cache.stats), "events": [e[:2] for e in _cache.events],
+                      "costs": c.tolist()}))
+""" % CELL)
+
+
+def _child(env):
+    out = subprocess.run([sys.executable, "-c", _CHILD], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_second_process_loads_from_the_cache(tmp_path):
+    env = dict(os.environ, TOUCHLOC_CACHE_DIR=str(tmp_path / "c"))
+    first = _child(env)
+    second = _child(env)
+    assert ["candidate_grid", "built"] in first["events"] and first["stats"].get("hit", 0) == 0
+    assert ["candidate_grid", "loaded"] in second["events"] and second["stats"].get("miss", 0) == 0
+    assert first["costs"] == second["costs"]
+
+
+def test_concurrent_processes_share_the_cache_safely(tmp_path):
+    env = dict(os.environ, TOUCHLOC_CACHE_DIR=str(tmp_path / "c"))
+    procs = [subprocess.Popen([sys.executable, "-c", _CHILD], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for _ in range(3)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [o[1] for o in outs]
+    costs = {json.dumps(json.loads(o[0].strip().splitlines()[-1])["costs"]) for o in outs}
+    assert len(costs) == 1
+    assert list((tmp_path / "c").rglob("*.tmp")) == []  # no temporary file left behind
+    after = _child(env)
+    assert after["stats"].get("corrupt", 0) == 0 and after["stats"]["hit"] >= 1
+
+
+def test_kernel_cache_falls_back_when_nothing_is_writable(tmp_path):
+    """A read-only install with a read-only home: kernels go to touchloc's cache directory,
+    or (when that is unwritable too) are compiled per process; importing never fails."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    src = tmp_path / "pkg" / "mod.py"
+    src.parent.mkdir()
+    src.write_text("")
+    (src.parent / "__pycache__").write_text("a file where numba wants a directory")
+    code = textwrap.dedent(f"""
+        import numba, json
+        from touchloc._cache import numba_cache_enabled
+        ok = numba_cache_enabled({str(src)!r})
+        print(json.dumps([ok, numba.config.CACHE_DIR]))
+    """)
+    base = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "TOUCHLOC_CACHE_DIR")}
+    env = dict(base, XDG_CACHE_HOME=str(blocker / "xdg"), HOME=str(blocker / "home"),
+               TOUCHLOC_CACHE_DIR=str(tmp_path / "tl"))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout) == [True, str(tmp_path / "tl" / "numba")]
+    env["TOUCHLOC_CACHE_DIR"] = str(blocker / "tl")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)[0] is False
+    # an explicit but unwritable NUMBA_CACHE_DIR: no disk cache, and the kernels still import
+    env = dict(base, NUMBA_CACHE_DIR=str(blocker / "nb"))
+    code2 = "import touchloc.models._kernels as K; print(K._NB['cache'])"
+    out = subprocess.run([sys.executable, "-c", code2], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
