@@ -68,6 +68,8 @@ stats: Counter = Counter()
 #: (kind, outcome, seconds) for each structure requested in this process, outcome one
 #: of ``"loaded"``, ``"built"`` (and saved), ``"built-unsaved"``
 events: list = []
+#: > 0 while the cache is bypassed (structures of throw-away meshes)
+suspended = 0
 
 
 class CacheWarning(UserWarning):
@@ -287,7 +289,7 @@ def cached_structure(kind: str, obj, params: dict, build, cls, *, code=()):
     path = None
     try:
         key = structure_key(kind, obj, params, code)
-        path = _path(kind, obj, key)
+        path = None if suspended else _path(kind, obj, key)
     except (TypeError, OSError, RuntimeError) as exc:  # cannot even name the file: build
         warnings.warn(f"touchloc cache: {kind}: {exc}; building without the cache", CacheWarning, stacklevel=2)
     if path is not None and path.exists():

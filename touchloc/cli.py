@@ -26,6 +26,7 @@ COMMAND_MODULES = [
     "touchloc.recognition._cli",
     "touchloc.mapping._cli",
     "touchloc.experiments._cli",
+    "touchloc._warmup",
 ]
 
 #: exit status after Ctrl-C (128 + SIGINT), as shells report it
@@ -90,7 +91,18 @@ def main(argv=None) -> int:
             else:
                 warnings.simplefilter("always" if args.verbose else "default")
                 warnings.showwarning = _show_warning(args.verbose)
-            return int(args.func(args) or 0)
+            from ._warmup import CompileNotice
+
+            with CompileNotice(enabled=not args.quiet) as compiling:  # says so when numba compiles
+                status = int(args.func(args) or 0)
+            if compiling.count and not args.quiet:
+                from .models._kernels import _NB
+
+                later = ("later runs load them from the cache" if _NB["cache"] else
+                         "no writable cache directory, so every run compiles: set NUMBA_CACHE_DIR")
+                print(f"touchloc: compiled {compiling.count} kernels in {compiling.seconds:.0f} s; {later}",
+                      file=sys.stderr, flush=True)
+            return status
     except TouchlocError as exc:
         if args.verbose > 1:
             raise

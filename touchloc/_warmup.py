@@ -1,0 +1,232 @@
+"""Set-up before timed work: compiled kernels and per-mesh structures.
+
+``touchloc warmup`` compiles every numba kernel once (after installing, so that no later
+command pays for it) and, given meshes, builds their per-mesh structures into the disk
+cache. ``touchloc cache info`` and ``touchloc cache clear`` show and empty that cache.
+
+The commands call :func:`prepare_models` before timing a localisation, so that the time
+they report is the localisation's alone and set-up is reported on its own line.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+__all__ = ["CompileNotice", "warm_kernels", "prepare_models", "SetUp"]
+
+NOTICE = ("touchloc: compiling the numerical kernels; this happens once per install and takes about "
+          "a minute (`touchloc warmup` does it ahead of time) ...")
+
+
+class CompileNotice:
+    """Context manager: say once on stderr when numba starts compiling touchloc kernels,
+    and add up the time spent compiling (``seconds``, ``count`` of kernels compiled).
+
+    Kernels loaded from numba's disk cache are not compiled and print nothing.
+    """
+
+    def __init__(self, *, file=None, enabled: bool = True):
+        self.file = file
+        self.enabled = enabled
+        self.seconds = 0.0
+        self.count = 0
+        self.shown = False
+        self._depth = 0
+        self._t0 = 0.0
+        self._listener = None
+
+    def _start(self, event):
+        d = event.data.get("dispatcher") if isinstance(event.data, dict) else None
+        mod = getattr(getattr(d, "py_func", None), "__module__", "") or ""
+        if not mod.startswith("touchloc"):
+            return
+        if self._depth == 0:
+            self._t0 = time.perf_counter()
+            if self.enabled and not self.shown:
+                print(NOTICE, file=self.file or sys.stderr, flush=True)
+            self.shown = True
+        self._depth += 1
+        self.count += 1
+
+    def _end(self, event):
+        d = event.data.get("dispatcher") if isinstance(event.data, dict) else None
+        mod = getattr(getattr(d, "py_func", None), "__module__", "") or ""
+        if not mod.startswith("touchloc") or self._depth == 0:
+            return
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._t0
+
+    def __enter__(self):
+        from numba.core import event
+
+        outer = self
+
+        class _L(event.Listener):
+            def on_start(self, ev):
+                outer._start(ev)
+
+            def on_end(self, ev):
+                outer._end(ev)
+
+        self._listener = _L()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        return False
+
+
+def _tetrahedron():
+    import trimesh
+
+    from .models import MeshObject
+
+    V = 0.05 * np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    return MeshObject(trimesh.Trimesh(V, F, process=False), name="tetrahedron", check_units=False)
+
+
+def warm_kernels(*, full: bool = False) -> float:
+    """Load (or compile, the first time) the numba kernels on a 4-face mesh; seconds taken.
+
+    ``full=False``: the kernels every localisation uses (exact and fast joint queries);
+    ``full=True``: every kernel, including position-only grids and the brute-force
+    reference.
+    """
+    from . import _cache
+
+    t0 = time.perf_counter()
+    obj = _tetrahedron()
+    _cache.suspended += 1  # nothing of this throw-away mesh goes to disk
+    try:
+        _warm(obj, full)
+    finally:
+        _cache.suspended -= 1
+    return time.perf_counter() - t0
+
+
+def _warm(obj, full):
+    from .models import ProximityModel
+
+    P = np.array([[0.01, 0.01, 0.01], [0.2, 0.0, 0.0]])
+    N = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    # a coarse grid: a tiny build, the same compiled code as any mesh's
+    model = ProximityModel(obj, 0.002, 0.1, grid_cell=0.02, grid_margin=0.01)
+    model.query_costs(P, N, method="exact")
+    model.query_costs(P, N, method="fast")
+    if full:
+        model.query_costs(P, None, method="fast")  # position-only grid lists
+        model.query_costs(P, N, method="bruteforce")
+        obj.closest_points(P)
+
+
+class SetUp:
+    """What :func:`prepare_models` did: seconds, kernel compile seconds, structure events."""
+
+    def __init__(self, seconds, kernel_seconds, compiled, events):
+        self.seconds = seconds
+        self.kernel_seconds = kernel_seconds
+        self.compiled = compiled
+        self.events = events
+
+    def line(self) -> str:
+        parts = [f"kernels {self.kernel_seconds:.2f} s{' (compiled, once per install)' if self.compiled else ''}"]
+        words = {"loaded": "loaded from the cache", "built": "built and cached", "built-unsaved": "built"}
+        for kind, outcome, dt in self.events:
+            parts.append(f"{kind.replace('_', ' ')} {dt:.2f} s ({words.get(outcome, outcome)})")
+        return f"set-up: {self.seconds:.2f} s: " + "; ".join(parts)
+
+
+def prepare_models(models, contacts=None) -> SetUp:
+    """Make the kernels and the per-mesh structures of ``models`` ready, before timing.
+
+    Parameters
+    ----------
+    models : ProximityModel or iterable of them (others are skipped)
+    contacts : Contacts, optional
+        Whether they carry normals decides which structures are needed.
+    """
+    from . import _cache
+    from .models import ProximityModel
+
+    if isinstance(models, ProximityModel):
+        models = [models]
+    t0 = time.perf_counter()
+    with CompileNotice(enabled=False) as cn:
+        warm_kernels()
+    tk = time.perf_counter() - t0
+    n_ev = len(_cache.events)
+    P = np.zeros((1, 3))
+    for m in models:
+        if not isinstance(m, ProximityModel):
+            continue
+        N = np.array([[0.0, 0.0, 1.0]]) if contacts is None or contacts.normals is not None else None
+        if m.method in ("auto", "exact"):
+            m.query_costs(P, N, method="exact")
+        if m.method in ("auto", "fast"):
+            m.query_costs(P, N, method="fast")
+    return SetUp(time.perf_counter() - t0, tk, cn.count > 0, list(_cache.events[n_ev:]))
+
+
+# -- commands ----------------------------------------------------------------------------
+
+def register(sub):
+    p = sub.add_parser("warmup", help="compile the kernels now (once per install), and cache meshes' structures",
+                       description="Compile every numerical kernel (once per install; later processes load them "
+                                   "from numba's cache in well under a second) and, for each --mesh given, build "
+                                   "the per-mesh structures of the proximity model into the touchloc cache.")
+    from .cli import add_mesh_argument
+
+    add_mesh_argument(p, name="--mesh", help_extra="; its structures are built for the default sigmas")
+    p.set_defaults(func=run_warmup)
+    q = sub.add_parser("cache", help="show or empty the per-mesh cache",
+                       description="The per-mesh cache holds structures that take seconds to build (the fast "
+                                   "likelihood's candidate grid, large meshes' trees). Its directory is "
+                                   "$TOUCHLOC_CACHE_DIR, else $XDG_CACHE_HOME/touchloc or ~/.cache/touchloc; "
+                                   "TOUCHLOC_CACHE_DIR=off turns it off.")
+    q.add_argument("action", choices=("info", "clear"), nargs="?", default="info")
+    q.set_defaults(func=run_cache)
+
+
+def run_warmup(args) -> int:
+    import numba
+
+    from .cli import load_mesh
+    from .models import ProximityModel
+
+    with CompileNotice(enabled=False) as cn:
+        dt = warm_kernels(full=True)
+    how = f"compiled {cn.count} (once per install)" if cn.count else "loaded from numba's cache"
+    where = numba.config.CACHE_DIR or "beside the installed sources or numba's per-user cache"
+    print(f"kernels: {how} in {dt:.1f} s; kept {where}")
+    if args.mesh:
+        obj = load_mesh(args.mesh, args.scale)
+        prep = prepare_models([ProximityModel(obj, 0.002, 0.1), ProximityModel(obj, 0.002, None)])
+        print(f"{obj.name}: {prep.line()}")
+    return 0
+
+
+def run_cache(args) -> int:
+    from . import _cache
+
+    if args.action == "clear":
+        n = _cache.clear()
+        print(f"removed {n} cached structure{'s' if n != 1 else ''} from {_cache.cache_dir()}")
+        return 0
+    inf = _cache.info()
+    if inf["dir"] is None:
+        print(f"the per-mesh cache is off ({_cache.ENV}={__import__('os').environ.get(_cache.ENV)!r})")
+        return 0
+    print(f"directory: {inf['dir']}")
+    if not inf["kinds"]:
+        print("empty")
+    for kind, (n, size) in inf["kinds"].items():
+        print(f"  {kind}: {n} file{'s' if n != 1 else ''}, {size / 1e6:.1f} MB")
+    return 0
