@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     sections = _existing_sections(out)
     sections.update(new)
     text = "# Benchmarks\n\nWritten by `make bench` (`python benchmarks/run.py`); each section says how it was measured.\n\n"
-    text += "\n".join(sections[k] for k in sorted(sections))
+    text += "\n".join(sections[k].rstrip("\n") + "\n" for k in sorted(sections))  # one blank line between
     out.write_text(text)
     print(f"wrote {out}")
     return 0
