@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -266,3 +267,74 @@ def test_kernel_cache_falls_back_when_nothing_is_writable(tmp_path):
     out = subprocess.run([sys.executable, "-c", code2], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
+
+
+# -- the command line ---------------------------------------------------------------------
+
+def _touchloc(args, env):
+    out = subprocess.run([sys.executable, "-c", "import sys; from touchloc.cli import main; sys.exit(main())", *args],
+                         env=env, capture_output=True, text=True, timeout=900)
+    return out.returncode, out.stdout, out.stderr
+
+
+def test_cli_reports_set_up_apart_and_reuses_the_grid(tmp_path):
+    obj = _mug()
+    rng = np.random.default_rng(3)
+    p, n, _ = obj.sample_surface(8, rng=rng)
+    csv = tmp_path / "c.csv"
+    np.savetxt(csv, np.hstack([p + [0.01, 0.0, 0.0], n]), delimiter=",", header="x,y,z,nx,ny,nz", comments="")
+    env = dict(os.environ, TOUCHLOC_CACHE_DIR=str(tmp_path / "c"))
+    args = ["localize", "--mesh", "mug", "--contacts", str(csv), "--rotation", "yaw", "--half-extent", "0.05"]
+    rc1, out1, err1 = _touchloc(args, env)
+    rc2, out2, err2 = _touchloc(args, env)
+    assert rc1 == 0 and rc2 == 0, err1 + err2
+    assert re.search(r"set-up: [\d.]+ s: kernels .*candidate grid [\d.]+ s \(built and cached\)", out1), out1
+    assert re.search(r"candidate grid [\d.]+ s \(loaded from the cache\)", out2), out2
+    assert re.search(r"time: [\d.]+ s localisation \(set-up [\d.]+ s more\)", out2)
+    # the same answer either way
+    pose = lambda out: out.split("MAP pose T_world_object:")[1].split("quat_xyzw")[0]  # noqa: E731
+    assert pose(out1) == pose(out2)
+
+    rc, out, _ = _touchloc(["cache", "info"], env)
+    assert rc == 0 and str(tmp_path / "c") in out and "candidate_grid: 1 file" in out
+    rc, out, _ = _touchloc(["cache", "clear"], env)
+    assert rc == 0 and re.search(r"removed [1-9]\d* cached structure", out)
+    assert list((tmp_path / "c").rglob("*.npz")) == []
+    rc, out, _ = _touchloc(["cache"], dict(os.environ, TOUCHLOC_CACHE_DIR="off"))
+    assert rc == 0 and "off" in out
+
+
+def test_warmup_command_builds_a_mesh_into_the_cache(tmp_path):
+    env = dict(os.environ, TOUCHLOC_CACHE_DIR=str(tmp_path / "c"))
+    rc, out, err = _touchloc(["warmup", "--mesh", "lemon"], env)
+    assert rc == 0, err
+    assert out.startswith("kernels: ") and "lemon: set-up:" in out
+    assert any(p.parent.name == "candidate_grid" for p in (tmp_path / "c").rglob("*.npz"))
+
+
+def _njit_in_module(modname):
+    import numba
+
+    ns = {"__name__": modname}
+    exec("def f(x):\n    return x + 1\n", ns)
+    return numba.njit(cache=False)(ns["f"])
+
+
+def test_compile_notice_is_printed_once_for_touchloc_kernels_only():
+    import io
+
+    from touchloc._warmup import NOTICE, CompileNotice
+
+    buf = io.StringIO()
+    with CompileNotice(file=buf) as cn:
+        _njit_in_module("someone_else")(1)
+        assert buf.getvalue() == "" and cn.count == 0
+        f = _njit_in_module("touchloc._notice_test")
+        f(1)
+        f(1.5)  # a second signature compiles again, but says nothing more
+    assert buf.getvalue() == NOTICE + "\n"
+    assert cn.count == 2 and cn.seconds > 0
+    buf2 = io.StringIO()
+    with CompileNotice(file=buf2) as cn2:
+        f(2)  # already compiled: no event
+    assert buf2.getvalue() == "" and cn2.count == 0
