@@ -10,6 +10,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[test]"
+	$(VENV)/bin/touchloc warmup   # compile the numba kernels now, once, not in the first command
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -59,14 +59,14 @@ __all__ = [
 FORMAT_VERSION = 1
 #: structures that took less than this to build (s) are not written (reading them back
 #: would cost about as much)
-MIN_SAVE_SECONDS = 0.05
+MIN_SAVE_SECONDS = 0.2
 ENV = "TOUCHLOC_CACHE_DIR"
 _OFF = {"off", "0", "no", "none", "false", "disable", "disabled", ""}
 
 #: counters of this process: ``hit``, ``miss``, ``write``, ``corrupt``, ``write_error``
 stats: Counter = Counter()
-#: (kind, outcome, seconds) for each structure requested in this process, outcome one
-#: of ``"loaded"``, ``"built"`` (and saved), ``"built-unsaved"``
+#: (kind, outcome, seconds, mesh name) for each structure requested in this process,
+#: outcome one of ``"loaded"``, ``"built"`` (and saved), ``"built-unsaved"``
 events: list = []
 #: > 0 while the cache is bypassed (structures of throw-away meshes)
 suspended = 0
@@ -301,7 +301,7 @@ def cached_structure(kind: str, obj, params: dict, build, cls, *, code=()):
                           CacheWarning, stacklevel=2)
         else:
             stats["hit"] += 1
-            events.append((kind, "loaded", time.perf_counter() - t0))
+            events.append((kind, "loaded", time.perf_counter() - t0, obj.name))
             return value
     stats["miss"] += 1
     value = build()
@@ -317,7 +317,7 @@ def cached_structure(kind: str, obj, params: dict, build, cls, *, code=()):
         else:
             stats["write"] += 1
             outcome = "built"
-    events.append((kind, outcome, time.perf_counter() - t0))
+    events.append((kind, outcome, time.perf_counter() - t0, obj.name))
     return value
 
 

@@ -139,8 +139,12 @@ class SetUp:
     def line(self) -> str:
         parts = [f"kernels {self.kernel_seconds:.2f} s{' (compiled, once per install)' if self.compiled else ''}"]
         words = {"loaded": "loaded from the cache", "built": "built and cached", "built-unsaved": "built"}
-        for kind, outcome, dt in self.events:
-            parts.append(f"{kind.replace('_', ' ')} {dt:.2f} s ({words.get(outcome, outcome)})")
+        names = {e[3] for e in self.events}
+        for kind, outcome, dt, name in self.events:
+            if outcome == "built-unsaved" and dt < 0.05:
+                continue  # too quick to matter (small meshes' trees)
+            who = f"{name} " if len(names) > 1 else ""
+            parts.append(f"{who}{kind.replace('_', ' ')} {dt:.2f} s ({words.get(outcome, outcome)})")
         return f"set-up: {self.seconds:.2f} s: " + "; ".join(parts)
 
 

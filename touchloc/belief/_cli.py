@@ -185,8 +185,7 @@ def run_identify(args) -> int:
     region = _region(args)
     models = {n: _model(o, args) for n, o in objs.items()}
     setup = prepare_models(list(models.values()), contacts)
-    if not args.json:
-        print(setup.line(), flush=True)
+    print(setup.line(), file=sys.stderr, flush=True)  # stdout holds the answer only
     t0 = time.perf_counter()
     try:
         post = identify(models, contacts, region, rng=args.seed)
