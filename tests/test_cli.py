@@ -104,7 +104,7 @@ def test_ctrl_c_ends_with_one_line_and_exit_130(mug_csv):
     finally:
         if p.poll() is None:
             p.kill()
-    assert p.returncode == 130
+    assert p.returncode == 130, err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == "touchloc localize: interrupted"
 
