@@ -4,8 +4,9 @@
 command pays for it) and, given meshes, builds their per-mesh structures into the disk
 cache. ``touchloc cache info`` and ``touchloc cache clear`` show and empty that cache.
 
-The commands call :func:`prepare_models` before timing a localisation, so that the time
-they report is the localisation's alone and set-up is reported on its own line.
+The commands call :func:`prepare_models` before timing a localisation, and take the time
+of per-mesh structures built during it out of the localisation's: the time they report
+is the localisation's alone, and set-up is reported on its own line.
 """
 
 from __future__ import annotations
@@ -128,13 +129,34 @@ def _warm(obj, full):
 
 
 class SetUp:
-    """What :func:`prepare_models` did: seconds, kernel compile seconds, structure events."""
+    """Set-up time of a command, kept apart from the time of its work.
 
-    def __init__(self, seconds, kernel_seconds, compiled, events):
-        self.seconds = seconds
+    Made by :func:`prepare_models`: the kernels are loaded (or compiled) at once; the
+    per-mesh structures are built or read from the cache when the work first needs them,
+    and :meth:`collect` takes their time out of the work's.
+    """
+
+    def __init__(self, kernel_seconds: float, compiled: bool):
+        from . import _cache
+
         self.kernel_seconds = kernel_seconds
         self.compiled = compiled
-        self.events = events
+        self.events = []
+        self._mark = len(_cache.events)
+
+    @property
+    def seconds(self) -> float:
+        """Set-up seconds so far: kernels plus the structures collected."""
+        return self.kernel_seconds + sum(e[2] for e in self.events)
+
+    def collect(self) -> float:
+        """Take in the structures built or loaded since the last call; returns their seconds."""
+        from . import _cache
+
+        new = _cache.events[self._mark:]
+        self._mark = len(_cache.events)
+        self.events += new
+        return sum(e[2] for e in new)
 
     def line(self) -> str:
         parts = [f"kernels {self.kernel_seconds:.2f} s{' (compiled, once per install)' if self.compiled else ''}"]
@@ -148,35 +170,40 @@ class SetUp:
         return f"set-up: {self.seconds:.2f} s: " + "; ".join(parts)
 
 
-def prepare_models(models, contacts=None) -> SetUp:
-    """Make the kernels and the per-mesh structures of ``models`` ready, before timing.
+def prepare_models(models=(), contacts=None, *, build: bool = False) -> SetUp:
+    """Load (or compile) the kernels now; with ``build=True`` also make the per-mesh
+    structures of ``models`` ready (the fast grid too, which a command may never need).
 
     Parameters
     ----------
     models : ProximityModel or iterable of them (others are skipped)
     contacts : Contacts, optional
-        Whether they carry normals decides which structures are needed.
+        Whether they carry normals decides which structures ``build`` makes.
+
+    Returns
+    -------
+    SetUp
+        Call its ``collect()`` after the timed work to move the time of structures built
+        during it into the set-up.
     """
-    from . import _cache
     from .models import ProximityModel
 
-    if isinstance(models, ProximityModel):
-        models = [models]
     t0 = time.perf_counter()
     with CompileNotice(enabled=False) as cn:
         warm_kernels()
-    tk = time.perf_counter() - t0
-    n_ev = len(_cache.events)
-    P = np.zeros((1, 3))
-    for m in models:
-        if not isinstance(m, ProximityModel):
-            continue
-        N = np.array([[0.0, 0.0, 1.0]]) if contacts is None or contacts.normals is not None else None
-        if m.method in ("auto", "exact"):
-            m.query_costs(P, N, method="exact")
-        if m.method in ("auto", "fast"):
-            m.query_costs(P, N, method="fast")
-    return SetUp(time.perf_counter() - t0, tk, cn.count > 0, list(_cache.events[n_ev:]))
+    setup = SetUp(time.perf_counter() - t0, cn.count > 0)
+    if build:
+        for m in [models] if isinstance(models, ProximityModel) else models:
+            if not isinstance(m, ProximityModel):
+                continue
+            P = np.zeros((1, 3))
+            N = np.array([[0.0, 0.0, 1.0]]) if contacts is None or contacts.normals is not None else None
+            if m.method in ("auto", "exact"):
+                m.query_costs(P, N, method="exact")
+            if m.method in ("auto", "fast"):
+                m.query_costs(P, N, method="fast")
+        setup.collect()
+    return setup
 
 
 # -- commands ----------------------------------------------------------------------------
@@ -212,7 +239,7 @@ def run_warmup(args) -> int:
     print(f"kernels: {how} in {dt:.1f} s; kept {where}")
     if args.mesh:
         obj = load_mesh(args.mesh, args.scale)
-        prep = prepare_models([ProximityModel(obj, 0.002, 0.1), ProximityModel(obj, 0.002, None)])
+        prep = prepare_models([ProximityModel(obj, 0.002, 0.1), ProximityModel(obj, 0.002, None)], build=True)
         print(f"{obj.name}: {prep.line()}")
     return 0
 
