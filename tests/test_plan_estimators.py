@@ -7,6 +7,7 @@ import pytest
 import trimesh
 from scipy.special import log_ndtr
 
+from _slab import at_x as _at_x, make_box, make_model, x_region as _x_region
 from touchloc.belief import HistogramFilter, ParticleFilter, PoseRegion, ScalingSeries, SMCFilter
 from touchloc.errors import ValidationError
 from touchloc.geometry import make_poses
@@ -19,23 +20,12 @@ from touchloc.planners.loop import SimulatedWorld, active_localization
 
 @pytest.fixture(scope="module")
 def box():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return MeshObject(trimesh.creation.box((0.06, 0.04, 0.03)), name="box")
+    return make_box()
 
 
 @pytest.fixture(scope="module")
 def model(box):
-    return ProximityModel(box, 0.002, 0.15)
-
-
-def _x_region(box):
-    return PoseRegion.box((0, 0, 0), (0.04, 0, 0), rotation=np.eye(3)).with_rho(box.radius)
-
-
-def _at_x(x):
-    x = np.atleast_1d(x)
-    return make_poses(np.repeat(np.eye(3)[None], len(x), 0), np.c_[x, 0 * x, 0 * x])
+    return make_model(box)
 
 
 FILTERS = {
