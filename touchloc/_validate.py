@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ __all__ = [
     "as_timeout",
     "as_count",
     "as_probability",
+    "as_float_array",
     "as_points",
     "as_pose",
     "as_poses",
@@ -146,10 +148,38 @@ def as_probability(x, name: str, *, open_low: bool = False, open_high: bool = Fa
 def _as_float_array(x, name: str, expected: str) -> np.ndarray:
     if x is None or isinstance(x, (str, bytes, dict, set)):
         raise ValidationError(f"{name} must be {expected}, got {type(x).__name__}")
+    if isinstance(x, np.ndarray) and x.dtype.kind in "cUSOV":
+        raise ValidationError(f"{name} must be {expected}, got an array of dtype {x.dtype}")
     try:
-        a = np.asarray(x, dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", np.exceptions.ComplexWarning)
+            a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValidationError(f"{name} must be {expected}: {exc}") from None
+    return a
+
+
+def as_float_array(x, name: str, *, shape=None, finite: bool = True, low=None,
+                   expected: str | None = None) -> np.ndarray:
+    """A float64 array of the given ``shape`` (``None`` entries match any length).
+
+    Non-numeric input (str, None, dicts, complex, object arrays) is rejected; so are NaN
+    and +-inf when ``finite`` (otherwise the caller checks them) and values below ``low``
+    when given.
+    """
+    what = expected or ("a float array" + (f" of shape {tuple('*' if d is None else d for d in shape)}"
+                                           if shape is not None else ""))
+    if isinstance(x, (bool, np.bool_)) or (isinstance(x, np.ndarray) and x.dtype.kind in "cUSOVb"):
+        raise ValidationError(f"{name} must be {what}, got {_describe(x)}")
+    if isinstance(x, complex):
+        raise ValidationError(f"{name} must be {what}, got complex {x!r}")
+    a = _as_float_array(x, name, what)
+    if shape is not None and (a.ndim != len(shape) or any(d is not None and d != n for d, n in zip(shape, a.shape))):
+        raise ValidationError(f"{name} must be {what}, got shape {a.shape}")
+    if finite and not np.all(np.isfinite(a)):
+        raise ValidationError(f"{name} must be finite, got {_describe(x)}")
+    if low is not None and np.any(a < low):
+        raise ValidationError(f"{name} must be >= {low}, got {_describe(x)}")
     return a
 
 
