@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
-from .._validate import as_positive_float, as_probability
+from .._validate import as_instance, as_nonnegative_float, as_pose, as_positive_float, as_probability
 from ..belief import ParticleBelief, SMCFilter
 from ..errors import ValidationError
 from .actions import TouchResult
@@ -33,9 +33,12 @@ class SimulatedWorld:
     """
 
     def __init__(self, obj, true_pose, *, noise_pos: float = 0.001, noise_nor: float = 0.05, rng=None):
-        self.obj = obj
-        self.true_pose = np.asarray(true_pose, dtype=float).reshape(4, 4)
-        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
+        from ..models import MeshObject
+
+        self.obj = as_instance(obj, MeshObject, "obj")
+        self.true_pose = as_pose(true_pose, "true_pose")
+        self.noise_pos = as_nonnegative_float(noise_pos, "noise_pos (m)")
+        self.noise_nor = as_nonnegative_float(noise_nor, "noise_nor")
         self.rng = as_rng(rng)
 
     def execute(self, action) -> list:
