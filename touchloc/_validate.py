@@ -127,7 +127,7 @@ def as_count(x, name: str, *, min: int = 1, max: int | None = None, why: str = "
         v = int(x)
     elif isinstance(x, (numbers.Real, np.floating)):
         f = float(x)
-        if not math.isfinite(f) or f != math.floor(f):
+        if not math.isfinite(f) or f != math.floor(f) or abs(f) > 2**53:
             raise ValidationError(f"{name} must be an integer, got {_describe(x)}")
         v = int(f)
     else:

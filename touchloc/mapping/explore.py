@@ -255,7 +255,7 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     """
     if not callable(getattr(world, "execute", None)):
         raise ValidationError("world must have execute(action) -> list of TouchResult")
-    if planner not in PLANNERS:
+    if not isinstance(planner, str) or planner not in PLANNERS:
         raise ValidationError(f"planner must be one of {PLANNERS}, got {planner!r}")
     n_touches = _as_count(n_touches, "n_touches")
     n_candidates = _as_count(n_candidates, "n_candidates", 10_000)
