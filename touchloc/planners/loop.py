@@ -8,7 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
-from .._validate import as_instance, as_nonnegative_float, as_pose, as_positive_float, as_probability
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_callable, as_count, as_instance,
+                         as_nonnegative_float, as_pose, as_positive_float, as_probability, as_sequence)
 from ..belief import ParticleBelief, SMCFilter
 from ..errors import ValidationError
 from .actions import TouchResult
@@ -167,12 +168,26 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     """
     if not hasattr(world, "execute"):
         raise ValidationError("world must have execute(action) -> list of TouchResult")
-    if int(max_touches) < 0:
-        raise ValidationError(f"max_touches must be >= 0, got {max_touches}")
+    from ..belief import PoseRegion
+    from ..belief._common import check_model
+
+    model = check_model(model)
+    region = as_instance(region, PoseRegion, "region")
+    if not callable(getattr(planner, "plan", None)):
+        raise ValidationError(f"planner must have plan(belief, candidates, rng=...), got {type(planner).__name__}")
+    if not callable(candidates):
+        candidates = as_sequence(candidates, "candidates", min_len=1, expected="a list of actions or a callable")
+    n_particles = as_count(n_particles, "n_particles", min=10, max=MAX_PARTICLES, why=WHY_PARTICLES)
+    max_touches = as_count(max_touches, "max_touches", min=0, max=100_000, why="each touch is one plan and update")
+    min_touches = as_count(min_touches, "min_touches", min=0)
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
+    keep_plans = as_bool(keep_plans, "keep_plans")
+    callback = as_callable(callback, "callback", allow_none=True)
     if confidence is None:
         stop_error = 0.005 if stop_error is None else as_positive_float(stop_error, "stop_error")
         stop_probability = as_probability(stop_probability, "stop_probability", open_low=True)
-        if stop_metric not in ("add_s", "pose"):
+        if not isinstance(stop_metric, str) or stop_metric not in ("add_s", "pose"):
             raise ValidationError(f"stop_metric must be 'add_s' or 'pose', got {stop_metric!r}")
     else:
         confidence = as_positive_float(confidence, "confidence")
@@ -180,7 +195,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     obj = model.obj
     if updater is None:
         updater = SMCFilter(model, n_particles, rng=rng)
-    if not hasattr(updater, "update"):
+    if not callable(getattr(updater, "update", None)) or "belief" not in dir(updater):
         raise ValidationError(f"updater must have update(results) and .belief, got {type(updater).__name__}")
     if _belief_of(updater) is None and hasattr(updater, "initialize"):
         updater.initialize(region)
