@@ -23,10 +23,16 @@ from pathlib import Path
 TITLE = "Reliability: hostile inputs, corrupted replies, killed writers"
 
 
-def _fuzz_public(time_limit: float):
+def _harness():
+    """The hostile-input harness of tests/test_fuzz_public.py."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    import test_fuzz_public as F
+    import test_fuzz_public
 
+    return test_fuzz_public
+
+
+def _fuzz_public(time_limit: float):
+    F = _harness()
     rows = []
     total = collections.Counter()
     for name, fn, params in F.CALLABLES:
@@ -138,6 +144,7 @@ def run(quick: bool = False) -> str:
     total, rows, n_callables = _fuzz_public(time_limit_s)
     dt = time.perf_counter() - t
     n = sum(total.values())
+    F = _harness()
     kinds = ", ".join(f"`{k}`" for k in sorted(F.BAD))
     out.append(f"**Public callables** ({n_callables} names of models, belief, planners, dnf and mapping; every "
                f"parameter x {len(F.BAD)} hostile values, one at a time, the other arguments ordinary; "
