@@ -2,8 +2,7 @@
 
 Three tallies, each counted in this run:
 
-1. Every public callable of models, belief, planners, dnf and mapping (the names in their
-   ``__all__``), called once per (parameter, hostile value) pair: the harness of
+1. Every public callable of the subpackages (the names in their ``__all__``), called once per (parameter, hostile value) pair: the harness of
    tests/test_fuzz_public.py, with a longer time limit per call.
 2. SDH-2 driver calls over replies of the real emulator corrupted at a rate of 0.5.
 3. Session-log writer processes killed with SIGKILL mid-stream; acknowledged records
@@ -32,17 +31,26 @@ def _harness():
 
 
 def _fuzz_public(time_limit: float):
+    import os
+
     F = _harness()
     rows = []
     total = collections.Counter()
-    for name, fn, params in F.CALLABLES:
-        c = collections.Counter()
-        for p in params:
-            for b in sorted(F.BAD):
-                kind, _ = F.run_one(fn, params, p.name, F.BAD[b], time_limit_s=time_limit, extra=F.CHEAP.get(name))
-                c[kind] += 1
-        total.update(c)
-        rows.append((name, c))
+    old = os.getcwd()
+    with tempfile.TemporaryDirectory() as scratch:  # hostile calls write files named by their arguments
+        os.chdir(scratch)
+        try:
+            for name, fn, params in F.CALLABLES:
+                c = collections.Counter()
+                for p in params:
+                    for b in sorted(F.BAD):
+                        kind, _ = F.run_one(fn, params, p.name, F.BAD[b], time_limit_s=time_limit,
+                                            extra=F.CHEAP.get(name))
+                        c[kind] += 1
+                total.update(c)
+                rows.append((name, c))
+        finally:
+            os.chdir(old)
     return total, rows, len(F.CALLABLES)
 
 
@@ -146,7 +154,8 @@ def run(quick: bool = False) -> str:
     n = sum(total.values())
     F = _harness()
     kinds = ", ".join(f"`{k}`" for k in sorted(F.BAD))
-    out.append(f"**Public callables** ({n_callables} names of models, belief, planners, dnf and mapping; every "
+    pkgs = ", ".join(m.split(".")[-1] for m in F.MODULES)
+    out.append(f"**Public callables** ({n_callables} names of {pkgs}; every "
                f"parameter x {len(F.BAD)} hostile values, one at a time, the other arguments ordinary; "
                f"{n} calls in {dt:.0f} s, {time_limit_s:g} s allowed per call). Hostile values: {kinds}.\n")
     out.append("| outcome | calls | share |\n|---|---:|---:|")

@@ -191,6 +191,8 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
         for k, v in estimators.items():
             as_callable(v, f"estimators[{k!r}]")
     record = as_bool(record, "record")
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
     estimators = estimators or default_estimators(rng=0)
     jobs = [(obj, name, make, ds) for obj, dss in datasets.items() for ds in dss for name, make in estimators.items()]
     out = {obj: {name: [] for name in estimators} for obj in datasets}

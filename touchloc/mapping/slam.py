@@ -100,7 +100,7 @@ class TactileSLAM:
         self.odometry_noise = _pair(odometry_noise, "odometry_noise")
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or not 10 <= n_particles <= 100_000:
             raise ValidationError(f"n_particles must be an integer in [10, 100000], got {n_particles!r}")
-        self.planar = bool(planar)
+        self.planar = as_bool(planar, "planar")
         self.rng = as_rng(rng)
         T0 = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose")
         self.map = ShapeMap(self.bounds, **map_kwargs)

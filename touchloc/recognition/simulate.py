@@ -477,6 +477,11 @@ def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | No
         items = [(getattr(o, "name", str(i)), o) for i, o in enumerate(objects)]
     if not items:
         raise ValidationError("objects must hold at least one object, got none")
+    from ..models import MeshObject
+
+    for name, o in items:
+        if not isinstance(o, MeshObject):
+            raise ValidationError(f"objects[{name!r}] must be a MeshObject, got {type(o).__name__}")
     scanner = scanner or TactileScanner()
     rng = as_rng(rng)
     X = np.concatenate([scanner.scan_many(o, n_scans, rng=rng, progress_bar=progress_bar) for _, o in items])
