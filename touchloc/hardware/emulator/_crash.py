@@ -1,8 +1,9 @@
 """Crash a session-log writer with SIGKILL, again and again, and count what survives.
 
-Each cycle starts a fresh Python process that opens the log for appending and writes
-records as fast as it can (each large enough to take several ``write`` calls, so a kill
-often lands mid-record), printing the number of every record whose ``append`` returned.
+Each cycle starts a Python process (a fresh interpreter, or a fork of this one) that opens
+the log for appending and writes records as fast as it can (each large enough to take
+several ``write`` calls, so a kill often lands mid-record), printing the number of every
+record whose ``append`` returned.
 The parent kills it with ``SIGKILL`` at a random moment. A record whose ``append``
 returned (it was acknowledged on stdout) must still be readable afterwards.
 """
