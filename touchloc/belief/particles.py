@@ -35,7 +35,9 @@ def systematic_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
     rng = as_rng(rng)
     if not weights.size or not weights.sum() > 0:
         raise BeliefDegenerateError("weights must hold at least one positive entry to resample from")
-    weights = weights / weights.sum()
+    total = weights.sum()
+    if abs(total - 1.0) > 1e-9:  # normalised weights are used as they are, bit for bit
+        weights = weights / total
     cs = np.cumsum(weights)
     cs[-1] = 1.0
     u = (rng.random() + np.arange(n)) / n
