@@ -281,7 +281,7 @@ def belief_coverage(belief, T_true, obj, levels=(0.5, 0.9, 0.95), *, method: str
     lv = as_float_array(levels, "levels", expected="credible levels in (0, 1]").reshape(-1)
     if np.any((lv <= 0) | (lv > 1)):
         raise ValidationError(f"levels must be in (0, 1], got {lv.tolist()}")
-    if method not in ("balls", "hpd"):
+    if not isinstance(method, str) or method not in ("balls", "hpd"):
         raise ValidationError(f"method must be 'balls' or 'hpd', got {method!r}")
     q = (credible_level if method == "balls" else hpd_level)(belief, T_true, obj, **kwargs)
     return {float(a): bool(q < a) for a in lv}

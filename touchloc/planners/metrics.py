@@ -78,7 +78,7 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, metric: str = "
     if not isinstance(obj, MeshObject):
         raise ValidationError(f"obj must be a touchloc.models.MeshObject, got {type(obj).__name__}")
     threshold = as_positive_float(threshold, "threshold")
-    if metric not in ("add_s", "pose"):
+    if not isinstance(metric, str) or metric not in ("add_s", "pose"):
         raise ValidationError(f"metric must be 'add_s' or 'pose', got {metric!r}")
     n = as_count(n, "n", max=100_000, why="surface points per pose")
     max_particles = as_count(max_particles, "max_particles", max=100_000, why="poses scored")
