@@ -1,11 +1,15 @@
-"""Property-based fuzzing of every public callable of models, belief, planners and dnf.
+"""Property-based fuzzing of every public callable of the subpackages (models, belief, planners,
+dnf, mapping, recognition, experiments).
 
 Every name in the ``__all__`` of those subpackages that can be called (functions and class
 constructors) is called with hostile arguments: one argument at a time gets a wrong type,
 NaN/inf, a wrong shape, an empty array, a huge or a negative value, while the others get
 ordinary values looked up by parameter name. Each call must end within a time limit in a
-:class:`~touchloc.errors.TouchlocError` or a result without NaN. Names added to an
-``__all__`` join the suite on their own.
+:class:`~touchloc.errors.TouchlocError` or a result without NaN (NaN passes only where the
+hostile value holds NaN and the docstring says "NaN in, NaN out"). Names added to an
+``__all__`` join the suite on their own. Three tests run per callable: its ordinary call must
+succeed (so each hostile value meets a call that would otherwise work), hypothesis draws 30
+(parameter, value) pairs, and an exhaustive sweep tries every pair once.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from hypothesis import strategies as st  # noqa: E402
 
 from touchloc.errors import TouchlocError  # noqa: E402
 
-MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping"]
+MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping",
+           "touchloc.recognition", "touchloc.experiments"]
 N_EXAMPLES = 30        # hostile calls per public callable
 TIME_LIMIT = 3.0       # seconds per call: beyond it the call counts as a hang
 
@@ -109,8 +114,14 @@ def _world():
         "truth": np.zeros(5), "tolerances": (0.01, 0.1), "cost": None, "objects": {"box": obj},
         "field": np.zeros(36), "n_other": 4, "F": np.zeros((36, 36)), "x": np.zeros(36),
         "params": None, "progress": False, "progress_bar": False, "datasets": {}, "results_": {}, "index": 0, "delta": 0.1,
+        "path": "fuzz-out.npz",
     }
     v["world"] = SimulatedWorld(obj, np.eye(4), rng=0)
+    # recognition: two classes of four tiny scans (n, frames, rows, cols), and feature rows
+    r = np.random.default_rng(0)
+    v.update(X=r.uniform(0, 4095, (8, 4, 4, 4)), y=np.repeat(["a", "b"], 4), Z=r.normal(size=(12, 5)),
+             Zc=r.normal(size=(12, 5)), P=r.normal(size=(12, 3)), T=r.normal(size=(12, 2)),
+             scores_known=r.normal(size=6), scores_unknown=r.normal(size=6) + 1.0)
     return v
 
 
@@ -162,12 +173,17 @@ def _has_nan(x, depth=0) -> bool:
     return False
 
 
-def _call_kwargs(fn, params, target, bad):
+def _call_kwargs(fn, params, target, bad, extra=None):
     w = world()
-    kwargs = {}
+    if callable(extra):  # values by name for this callable: used where a parameter has that name
+        w = {**w, **extra(w)}
+        extra = None
+    kwargs = {k: v for k, v in (extra or {}).items() if k != target}
     for p in params:
         if p.name == target:
             kwargs[p.name] = bad
+        elif p.name in kwargs:
+            continue
         elif p.name in w:
             kwargs[p.name] = w[p.name]
         elif p.default is inspect.Parameter.empty:
@@ -177,13 +193,36 @@ def _call_kwargs(fn, params, target, bad):
     return fn(*args, **kwargs)
 
 
-def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT):
-    """One hostile call: returns ('ok' | 'error' | 'raw' | 'hang' | 'nan', detail)."""
+#: a docstring with this phrase declares that NaN in an argument comes back as NaN (low-level
+#: array helpers that run in every step and do not scan their input)
+NAN_IN_NAN_OUT = "NaN in, NaN out"
+
+
+def _documents_nan_propagation(fn) -> bool:
+    return NAN_IN_NAN_OUT in (inspect.getdoc(fn) or "")
+
+
+def _holds_nan(x) -> bool:
+    if not isinstance(x, (float, np.ndarray)):
+        return False
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return bool(np.isnan(a).any())
+
+
+def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT, extra=None):
+    """One hostile call: returns ('ok' | 'error' | 'raw' | 'hang' | 'nan', detail).
+
+    A NaN result counts as 'ok' only when the hostile value itself holds NaN and the
+    callable's docstring says "NaN in, NaN out".
+    """
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with np.errstate(all="ignore"), time_limit(time_limit_s):
-                out = _call_kwargs(fn, params, target, bad)
+                out = _call_kwargs(fn, params, target, bad, extra)
     except CallTimeout as exc:
         return "hang", str(exc)
     except TouchlocError:
@@ -191,85 +230,110 @@ def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT):
     except Exception as exc:  # noqa: BLE001 - the point is to catch what escapes
         return "raw", f"{type(exc).__name__}: {exc}"[:200]
     if _has_nan(out):
+        if _holds_nan(bad) and _documents_nan_propagation(fn):
+            return "ok", "NaN in, NaN out (documented)"
         return "nan", type(out).__name__
     return "ok", ""
 
 
 #: callables whose entry validation is still incomplete: the first unclean outcome found by an
-#: exhaustive sweep (benchmarks/bench_reliability.py), as "kinds: parameter=value: outcome".
-#: They run as non-strict xfails, so a fix shows up as XPASS and the entry can go.
-UNCLEAN = {
-    "models.MeshObject": "raw: name=empty_pts: raw ValueError: The truth value of an empty array is ambiguous. Use `array.size > 0` to check ",
-    "models.SumModel": "raw: models=-inf: raw TypeError: 'float' object is not iterable",
-    "models.IntegratedProximityModel": "raw: sigma_pos=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "belief.PoseRegion": "raw: center=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "belief.ParticleBelief": "raw: log_weights=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "belief.systematic_resample": "raw: weights=-inf: raw AttributeError: 'NoneType' object has no attribute 'random'",
-    "belief.ScalingSeries": "raw: delta_final=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "belief.ParticleFilter": "raw: n_particles=-inf: raw OverflowError: cannot convert float infinity to integer",
-    "belief.HistogramFilter": "raw: resolution=None: raw TypeError: '>' not supported between instances of 'NoneType' and 'int'",
-    "belief.AnnealedParticleFilter": "raw: n_particles=-inf: raw OverflowError: cannot convert float infinity to integer",
-    "belief.ManifoldParticleFilter": "raw: n_particles=-inf: raw OverflowError: cannot convert float infinity to integer",
-    "belief.MCMC": "raw: n_walkers=-inf: raw OverflowError: cannot convert float infinity to integer",
-    "belief.add_s": "raw: obj=-inf: raw AttributeError: 'float' object has no attribute '_cache'",
-    "belief.add": "raw: obj=-inf: raw AttributeError: 'float' object has no attribute '_cache'",
-    "belief.pose_errors": "raw: T_est=-inf: raw IndexError: too many indices for array: array is 0-dimensional, but 2 were indexed",
-    "planners.HandTouch": "raw: touches=-inf: raw TypeError: 'float' object is not iterable",
-    "planners.TravelDistance": "raw: overhead=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "planners.TravelTime": "raw: speed=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "planners.execute": "raw: true_pose=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "planners.OneStepPlanner": "raw: utility=empty_pts: raw ValueError: The truth value of an empty array is ambiguous. Use `array.size > 0` to che",
-    "planners.TwoStepPlanner": "raw: branch=-inf: raw OverflowError: cannot convert float infinity to integer",
-    "planners.NegEntropy": "raw: floor=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "planners.TaskSuccess": "raw: tolerances=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "planners.SimulatedWorld": "raw: true_pose=-inf: raw ValueError: cannot reshape array of size 1 into shape (4,4)",
-    "planners.add_s": "raw: obj=-inf: raw AttributeError: 'float' object has no attribute '_cache'",
-    "planners.best_pose": "raw: belief=-inf: raw AttributeError: 'float' object has no attribute 'map_pose'",
-    "planners.expected_add_s": "raw: belief=-inf: raw AttributeError: 'float' object has no attribute 'credible_set'",
-    "planners.make_scenario": "raw: setting=empty_pts: raw ValueError: The truth value of an empty array is ambiguous. Use `array.size > 0` to che",
-    "planners.EstimatorUpdater": "raw: model=-inf: raw AttributeError: 'float' object has no attribute 'obj'",
-    "planners.IdentityPlanner": "raw: objects=-inf: raw TypeError: 'float' object is not iterable",
-    "dnf.OrientationTracker": "raw: params=-inf: raw AttributeError: 'float' object has no attribute 'n_sites'",
-    "dnf.count_surfaces": "raw: sigma=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "dnf.surface_peaks": "raw: sigma=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "dnf.HistogramEstimator": "raw: n_bins=huge_int: raw MemoryError: Unable to allocate 72.8 TiB for an array with shape (10000000000000,) and da",
-    "dnf.normalize_max": "raw: a=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "dnf.population_code": "raw: angles=-inf: raw IndexError: invalid index to scalar variable.",
-    "dnf.ParticleOrientationEstimator": "raw: n_particles=huge_int: raw MemoryError: Unable to allocate 72.8 TiB for an array with shape (10000000000000,) a",
-    "dnf.compare": "raw: datasets=-inf: raw AttributeError: 'float' object has no attribute 'items'",
-    "dnf.run_estimator": "raw: name=-inf: raw TypeError: 'NoneType' object is not callable",
-    "dnf.orientation_error": "nan: estimate=-inf: nan ndarray",
-    "dnf.summary_table": "raw: results=-inf: raw AttributeError: 'float' object has no attribute 'items'",
-    "dnf.Field1D": "raw: n=huge_int: raw MemoryError: Unable to allocate 72.8 TiB for an array with shape (10000000000000,) and dat",
-    "dnf.Field2D": "raw: shape=-inf: raw TypeError: object of type 'float' has no len()",
-    "dnf.FieldParams": "raw: tau=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not be",
-    "dnf.MemoryTrace": "raw: n=huge_int: raw MemoryError: Unable to allocate 72.8 TiB for an array with shape (10000000000000,) and dat",
-    "dnf.sigmoid": "nan/raw: u=None: raw TypeError: unsupported operand type(s) for *: 'NoneType' and 'float'",
-    "dnf.lateral_kernel": "raw: n=-inf: raw ValueError: Maximum allowed size exceeded",
-    "dnf.circular_convolve": "nan/raw: x=-inf: raw IndexError: tuple index out of range",
-    "dnf.expand": "raw: n_other=-inf: raw ValueError: all elements of broadcast shape must be non-negative",
-    "dnf.diagonal_sum": "nan: F=nan_matrix: nan ndarray",
-    "dnf.RotationDataset": "raw: time=complex: raw TypeError: float() argument must be a string or a real number, not 'complex'",
-    "dnf.generate_rotation_dataset": "raw: revolutions=None: raw TypeError: ufunc 'isfinite' not supported for the input types, and the inputs could not ",
-    "dnf.standard_datasets": "raw: objects=-inf: raw TypeError: 'float' object is not iterable",
-    "dnf.load_recording": "raw: path=-inf: raw TypeError: expected str, bytes or os.PathLike object, not float",
-    "dnf.save_recording": "raw: ds=-inf: raw TypeError: expected str, bytes or os.PathLike object, not NoneType",
-    # names new in belief/ (under active change elsewhere): entry validation still to add
-    "belief.symmetric_pose_error": "raw: T_true=None: raw ValueError: cannot reshape array of size 1 into shape (4,4)",
-    "belief.credible_level": "raw: T_true=complex: raw TypeError: float() argument must be a string or a real number",
-    "belief.belief_coverage": "raw: T_true=-inf: raw ValueError: cannot reshape array of size 1 into shape (4,4)",
-    "belief.save_belief": "raw: extra=bool: raw TypeError: 'bool' object is not iterable",
-    "belief.load_belief": "raw: path=-inf: raw TypeError: expected str, bytes or os.PathLike object, not float",
-    "belief.pose_to_dict": "raw: T=complex: raw TypeError: float() argument must be a string or a real number",
-}
+#: exhaustive sweep (benchmarks/bench_reliability.py), as "parameter=value: outcome". They run
+#: as non-strict xfails, so a fix shows up as XPASS and the entry can go. Empty: every
+#: exported callable ends every hostile call cleanly.
+UNCLEAN: dict = {}
 
-#: a valid call of these runs a whole localisation (seconds); 30 calls exceed the budget of
-#: the suite, so they are swept only by benchmarks/bench_reliability.py
-TOO_SLOW = {
-    "belief.identify": "one valid call localises every model with Scaling Series (seconds each)",
-    "belief.log_evidence": "one valid call runs a full Scaling Series localisation (about 2 s)",
-    "planners.active_localization": "one valid call runs a 20-touch active localisation (seconds)",
+#: keyword arguments for one callable, where the values looked up by parameter name do not
+#: fit it (a dict, or a function of the world's values) or a valid call would be slow; a
+#: hostile value for the same argument still replaces them. With them, the ordinary call of
+#: every callable is valid (test_ordinary_arguments_make_a_valid_call), so each hostile
+#: value meets a call that would otherwise have worked.
+_SMALL_SERIES = dict(n_initial=200, m_per_delta=2, max_particles=500, delta_final=0.004)
+
+
+def _dnf_args(w):
+    from touchloc import dnf
+
+    if "dnf" not in w:
+        ds = dnf.generate_rotation_dataset(6, revolutions=0.05, rng=0)
+        dnf.save_recording(ds, "fuzz-recording.npz")
+        runs = dnf.compare({"6-gon": [ds]}, {"hist": dnf.HistogramEstimator})
+        w["dnf"] = dict(ds=ds, dataset=ds, datasets={"6-gon": [ds]}, make=dnf.HistogramEstimator,
+                        estimators={"hist": dnf.HistogramEstimator}, results=runs)
+    return w["dnf"]
+
+
+def _mapping_args(w):
+    from touchloc.mapping import ShapeMap
+
+    if "mapping" not in w:
+        pts, nrm, _ = w["obj"].sample_surface(12, rng=1)
+        bounds = ((-0.05, -0.05, -0.05), (0.05, 0.05, 0.05))
+        w["mapping"] = dict(bounds=bounds, smap=ShapeMap(bounds, method="occupancy", resolution=16),
+                            a=w["obj"], b=w["obj"], n=200, T=np.eye(4), planner="random", n_touches=2,
+                            method="occupancy", resolution=16, n_particles=20,
+                            contacts=__import__("touchloc.models").models.Contacts(pts, nrm), n_starts=1)
+    return w["mapping"]
+
+
+def _experiment_args(w):
+    from touchloc.experiments import Sweep, run_sweep
+
+    if "experiments" not in w:
+        sweep = Sweep(meshes=["can"], estimators=[{"name": "pf", "n_particles": 50}], contacts=[3], seeds=1)
+        trial = sweep.trials()[0]
+        rows = run_sweep(sweep, "fuzz-results.csv", executor_spec="serial", parquet=False, progress=False)
+        w["experiments"] = dict(sweep=sweep, params=trial, out="fuzz-results-2.csv", executor_spec="serial",
+                                parquet=False, progress=False, rows=rows, path="fuzz-results.csv")
+    return w["experiments"]
+
+
+def _classifier(split):
+    from touchloc.recognition import NearestNeighbourClassifier
+
+    return NearestNeighbourClassifier()
+
+
+CHEAP = {
+    "belief.identify": _SMALL_SERIES,
+    "belief.log_evidence": _SMALL_SERIES,
+    "planners.active_localization": dict(n_particles=50, max_touches=1),
+    "models.SumModel": lambda w: dict(models=[w["model"], w["model"]]),
+    "models.RayStopModel": lambda w: dict(origins=w["starts"], directions=w["ends"] - w["starts"],
+                                          travel=np.full(len(w["ends"]), 0.05), max_travel=0.2),
+    "models.ray_stops": lambda w: dict(origins=w["starts"], directions=w["ends"] - w["starts"]),
+    "belief.pose_to_dict": dict(T=np.eye(4)),
+    "belief.hpd_level": dict(n=6, k=2),
+    "belief.pairwise_symmetric_distance": dict(rho=0.05),
+    "planners.prob_error_below": dict(threshold=0.005),
+    "experiments.Sweep": dict(contacts=[3], region="full", seeds=1),
+    "recognition.simulate_dataset": dict(n_scans=1, scanner=None),
+    "recognition.evaluate_protocol": dict(n_train=2, n_splits=1, make_classifier=_classifier),
+    "recognition.evaluate_rejection": lambda w: dict(X=np.concatenate([w["X"], w["X"][:4]]),
+                                                     y=np.repeat(["a", "b", "c"], 4), n_unknown=1, n_train=2,
+                                                     n_splits=1, make_classifier=_classifier),
+    "recognition.aev_quantize": dict(n_ref=3, epochs=3),
+    "recognition.sanger_pca": dict(n_pc=2, epochs=3),
+    "recognition.svd_pca": dict(n_pc=2),
+    "recognition.plot_scan": lambda w: dict(frames=w["X"][0], n_shown=2, columns=2),
+    "dnf.lateral_kernel": lambda w: dict(n=36, params=__import__("touchloc.dnf").dnf.FieldParams()),
+    "dnf.circular_convolve": dict(x=np.zeros(36), kernel_fft=np.fft.rfft(np.ones(36)), n=36),
+    "dnf.RotationDataset": dict(time=[0.0, 1.0], odometry=[0.0, 0.1], normal_angles=[0.1, 0.2],
+                                sample_index=[0, 1]),
+    "dnf.standard_datasets": dict(objects=("6-gon",), n_per_object=1, revolutions=0.05),
 }
+for _name in ("compare", "run_estimator", "summary_table", "load_recording", "save_recording"):
+    CHEAP[f"dnf.{_name}"] = _dnf_args
+CHEAP["dnf.load_recording"] = lambda w: dict(path=(_dnf_args(w), "fuzz-recording.npz")[1])
+CHEAP["dnf.save_recording"] = lambda w: dict(ds=_dnf_args(w)["ds"], path="fuzz-recording-2.csv")
+for _name in ("ShapeMap", "TactileSLAM", "transform_results", "explore", "ray_information", "box_pool",
+              "hand_pool", "lattice_pool", "chamfer_distance", "fscore", "surface_distances"):
+    CHEAP[f"mapping.{_name}"] = _mapping_args
+CHEAP["mapping.fit_superquadric"] = _mapping_args
+for _name in ("run_trial", "run_sweep", "read_results", "summarize", "trial_id"):
+    CHEAP[f"experiments.{_name}"] = _experiment_args
+
+#: callables left out of the sampled suite (none at present), with the reason
+TOO_SLOW: dict = {}
 
 
 def _marks(name):
@@ -292,7 +356,7 @@ def test_public_callable_survives_hostile_arguments(entry):
               phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck))
     @given(target=st.sampled_from(names), bad=st.sampled_from(sorted(BAD)))
     def check(target, bad):
-        kind, detail = run_one(fn, params, target, BAD[bad])
+        kind, detail = run_one(fn, params, target, BAD[bad], extra=CHEAP.get(name))
         if kind in ("raw", "hang", "nan"):
             failures.append(f"{name}({target}={bad}): {kind} {detail}")
 
@@ -300,7 +364,30 @@ def test_public_callable_survives_hostile_arguments(entry):
     assert not failures, "\n".join(sorted(set(failures))[:20])
 
 
+@pytest.mark.parametrize("entry", [pytest.param(c, id=c[0], marks=_marks(c[0])) for c in CALLABLES if c[2]])
+def test_every_parameter_with_every_hostile_value(entry):
+    """The exhaustive sweep: each parameter of each callable gets each hostile value once."""
+    name, fn, params = entry
+    failures = []
+    for p in params:
+        for bad in sorted(BAD):
+            kind, detail = run_one(fn, params, p.name, BAD[bad], extra=CHEAP.get(name))
+            if kind in ("raw", "hang", "nan"):
+                failures.append(f"{name}({p.name}={bad}): {kind} {detail}")
+    assert not failures, "\n".join(failures[:20])
+
+
+@pytest.mark.parametrize("entry", [pytest.param(c, id=c[0]) for c in CALLABLES if c[2]])
+def test_ordinary_arguments_make_a_valid_call(entry):
+    """Without a hostile value the call succeeds, so every hostile value meets a call that
+    would otherwise have worked (and not one that fails on another argument first)."""
+    name, fn, params = entry
+    kind, detail = run_one(fn, params, None, None, time_limit_s=30.0, extra=CHEAP.get(name))
+    assert kind == "ok", f"{name}: {kind} {detail}"
+
+
 def test_suite_covers_every_public_callable():
     """At least 30 inputs per callable over every exported callable of the four subpackages."""
     assert len(CALLABLES) >= 80
-    assert N_EXAMPLES >= 30
+    assert N_EXAMPLES >= 30 and len(BAD) >= 25
+    assert not UNCLEAN and not TOO_SLOW

@@ -1,16 +1,22 @@
-"""DSACON32m: CRC vectors, packets, RLE, and the driver against the emulator (TCP and pty)."""
+"""DSACON32m: CRC vectors, packets, RLE, and the driver against the emulator (TCP, pty and a
+virtual CAN bus)."""
 
+import itertools
 import struct
+
+import can
 
 import numpy as np
 import pytest
 import serial
 
-from touchloc.errors import ChecksumError, FirmwareError, HardwareTimeout, ProtocolError, ValidationError
+from touchloc.errors import (ChecksumError, DeviceDisconnected, FirmwareError, HardwareTimeout, ProtocolError,
+                             ValidationError)
 from touchloc.hardware import (DSACON32m, DSAFirmwareError, PacketParser, crc16, decode_frame, decode_rle,
                                encode_packet, encode_rle)
+from touchloc.hardware._transport import CANLink
 from touchloc.hardware.dsacon import POWERUP_ESC
-from touchloc.hardware.emulator import DSACON32mEmulator, PtyServer, TCPServer
+from touchloc.hardware.emulator import CANServer, DSACON32mEmulator, PtyServer, TCPServer
 
 SHAPES = [(14, 6), (13, 6)] * 3
 
@@ -108,7 +114,10 @@ def test_parser_byte_by_byte():
 
 
 # -- driver against the emulator -------------------------------------------------------------------
-@pytest.fixture(params=["tcp", "pty"])
+_channels = itertools.count()
+
+
+@pytest.fixture(params=["tcp", "pty", "can"])
 def tactile(request):
     rng = np.random.default_rng(3)
     mats = [rng.integers(0, 4096, s).astype(np.uint16) for s in SHAPES]
@@ -118,12 +127,16 @@ def tactile(request):
     if request.param == "tcp":
         srv = TCPServer(emu).start()
         port = serial.serial_for_url(srv.url, timeout=0.05)
-    else:
+    elif request.param == "pty":
         srv = PtyServer(emu).start()
         port = serial.serial_for_url(srv.path, baudrate=115200, timeout=0.05)
+    else:  # the same packets cut into 8-byte frames on a python-can virtual bus
+        ch = f"dsa-test-{next(_channels)}"
+        srv = CANServer(emu, channel=ch).start()
+        port = can.Bus(interface="virtual", channel=ch)
     dev = DSACON32m(port, timeout=0.5, open_timeout=0.5)
     yield emu, dev, mats
-    port.close()
+    port.shutdown() if request.param == "can" else port.close()
     srv.close()
 
 
@@ -195,6 +208,20 @@ def test_faults_are_typed_and_recoverable(tactile, fault, exc):
     dev.link.discard_input()
     dev.parser.reset()
     np.testing.assert_array_equal(dev.read_frame().matrices[0], mats[0])
+
+
+def test_disconnect_mid_stream_is_typed(tactile):
+    emu, dev, mats = tactile
+    dev.start_streaming(100)
+    assert len(list(dev.frames(2))) == 2
+    dev.stop_streaming()
+    emu.faults.add("disconnect", on=0x03)
+    # TCP and the pty close the line; CAN has no connection, so the device falls silent
+    with pytest.raises((DeviceDisconnected, HardwareTimeout)) as info:
+        dev.read_frame()
+        dev.read_frame()
+    if isinstance(dev.link, CANLink):
+        assert isinstance(info.value, HardwareTimeout)
 
 
 def test_garbage_before_reply_is_skipped(tactile):

@@ -91,3 +91,13 @@ def test_kill_9_of_a_writer_loses_no_acknowledged_record(tmp_path):
     assert r["acked"] > 0
     assert r["lost"] == 0 and r["lost_by_repair"] == 0
     assert r["torn_after_repair"] == 0 and r["after_repair"] >= r["acked"]
+
+
+def test_kill_9_of_forked_writers_loses_no_acknowledged_record(tmp_path):
+    """The same writer forked (no interpreter start): more cycles in the same time."""
+    from touchloc.hardware.emulator._crash import kill_cycles
+
+    r = kill_cycles(tmp_path / "s.jsonl", 12, rng=5, chunked=0.75, start="fork")
+    assert r["cycles"] == 12 and r["acked"] > 0
+    assert r["lost"] == 0 and r["lost_by_repair"] == 0
+    assert r["torn_after_repair"] == 0 and r["after_repair"] >= r["acked"]

@@ -159,7 +159,7 @@ def test_csv_missing_file_and_directory(tmp_path):
 @pytest.mark.parametrize("bad", [True, False, 0, 3, 1.5, None, b"c.csv", ["c.csv"]])
 def test_csv_non_path_arguments_never_read_a_file_descriptor(bad):
     # open(0) would read stdin and open(3) some descriptor: a bool or int is not a path
-    with pytest.raises(ValidationError, match="needs a file path"):
+    with pytest.raises(ValidationError, match="must be a path"):
         Contacts.from_csv(bad)
 
 

@@ -132,3 +132,78 @@ def test_one_step_planner_refuses_a_degenerate_belief(objects):
     touch = GuardedTouch((0, 0, 0.3), (0, 0, -1), 0.5)
     with pytest.raises(BeliefDegenerateError):
         OneStepPlanner(ProximityModel(obj, 0.002, 0.1), max_particles=10).plan(belief, [touch], rng=0)
+
+
+# -- validators for flags, names, types, callables, containers and arrays ---------------------
+def test_as_bool_takes_flags_and_0_1_only():
+    from touchloc._validate import as_bool
+
+    assert as_bool(True, "f") is True and as_bool(np.bool_(False), "f") is False
+    assert as_bool(1, "f") is True and as_bool(0, "f") is False
+    for bad in (2, -1, 0.0, "yes", None, np.array([True, False])):
+        with pytest.raises(ValidationError, match="True or False"):
+            as_bool(bad, "f")
+
+
+def test_as_name_and_as_instance_and_as_callable():
+    from touchloc._validate import as_callable, as_instance, as_name
+
+    assert as_name("a", "n") == "a" and as_name(None, "n") is None
+    with pytest.raises(ValidationError, match="a str"):
+        as_name(None, "n", allow_none=False)
+    with pytest.raises(ValidationError, match="a str or None"):
+        as_name(np.array(["a"]), "n")
+    assert as_instance(3, int, "k") == 3
+    with pytest.raises(ValidationError, match="k must be a int or float, got str"):
+        as_instance("3", (int, float), "k")
+    assert as_callable(len, "f") is len and as_callable(None, "f", allow_none=True) is None
+    with pytest.raises(ValidationError, match="callable"):
+        as_callable(1.0, "f")
+
+
+def test_as_sequence_and_as_mapping_check_types_of_items():
+    from touchloc._validate import as_mapping, as_sequence
+
+    assert as_sequence((1, 2), "xs") == [1, 2]
+    assert as_sequence(np.arange(3), "xs", of=np.integer) == [0, 1, 2]
+    for bad in ("ab", None, 1.0, {"a": 1}, np.float64(1.0)):
+        with pytest.raises(ValidationError, match="xs must be"):
+            as_sequence(bad, "xs")
+    with pytest.raises(ValidationError, match=r"xs\[1\]"):
+        as_sequence([1, "2"], "xs", of=int)
+    with pytest.raises(ValidationError, match="at least 1"):
+        as_sequence([], "xs", min_len=1)
+    assert as_mapping({"a": 1}, "m", of=int) == {"a": 1}
+    with pytest.raises(ValidationError, match="m must be a dict"):
+        as_mapping([("a", 1)], "m")
+    with pytest.raises(ValidationError, match=r"m\['a'\]"):
+        as_mapping({"a": "1"}, "m", of=int)
+
+
+@pytest.mark.parametrize("bad", ["x", None, {}, object(), 1j, [1j], np.array(["a"]), True,
+                                 np.array([1.0, np.nan]), [1.0, float("inf")]])
+def test_as_float_array_refuses_non_numbers_and_non_finite(bad):
+    from touchloc._validate import as_float_array
+
+    with pytest.raises(ValidationError, match="v must be"):
+        as_float_array(bad, "v")
+
+
+def test_as_float_array_shapes_and_bounds():
+    from touchloc._validate import as_float_array
+
+    a = as_float_array([[1, 2, 3]], "v", shape=(None, 3))
+    assert a.dtype == np.float64 and a.shape == (1, 3)
+    with pytest.raises(ValidationError, match=r"shape \(1, 2\)"):
+        as_float_array([[1, 2]], "v", shape=(None, 3))
+    with pytest.raises(ValidationError, match=">= 0"):
+        as_float_array([1.0, -1.0], "v", low=0.0)
+    assert np.isinf(as_float_array([np.inf], "v", finite=False)).all()
+
+
+def test_as_count_refuses_floats_beyond_exact_integers():
+    assert as_count(3.0, "n") == 3
+    with pytest.raises(ValidationError, match="integer"):
+        as_count(1e300, "n")
+    with pytest.raises(ValidationError, match="integer"):
+        as_count(2.0**60, "n")

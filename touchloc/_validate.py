@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,17 +26,31 @@ __all__ = [
     "as_timeout",
     "as_count",
     "as_probability",
+    "as_float_array",
     "as_points",
     "as_pose",
     "as_poses",
     "as_path",
+    "as_bool",
+    "as_name",
+    "as_instance",
+    "as_callable",
+    "as_sequence",
+    "as_mapping",
     "ORTHO_TOL",
+    "MAX_PARTICLES",
+    "WHY_PARTICLES",
 ]
 
 #: Largest deviation allowed in ``R.T @ R - I`` and ``det(R) - 1`` for a pose's rotation.
 #: Rotations composed in float64 stay within about 1e-12 of orthonormal; 1e-6 leaves room
 #: for poses read from text files with 7-8 significant digits.
 ORTHO_TOL = 1e-6
+
+#: Upper limit of a particle, sample or walker count: one pose is 128 bytes, so 1e7 poses
+#: hold 1.3 GB before any likelihood work; larger counts are typing errors, not studies.
+MAX_PARTICLES = 10_000_000
+WHY_PARTICLES = "memory: a pose takes 128 bytes, 1e7 poses 1.3 GB"
 
 
 def _describe(x) -> str:
@@ -112,7 +127,7 @@ def as_count(x, name: str, *, min: int = 1, max: int | None = None, why: str = "
         v = int(x)
     elif isinstance(x, (numbers.Real, np.floating)):
         f = float(x)
-        if not math.isfinite(f) or f != math.floor(f):
+        if not math.isfinite(f) or f != math.floor(f) or abs(f) > 2**53:
             raise ValidationError(f"{name} must be an integer, got {_describe(x)}")
         v = int(f)
     else:
@@ -133,10 +148,38 @@ def as_probability(x, name: str, *, open_low: bool = False, open_high: bool = Fa
 def _as_float_array(x, name: str, expected: str) -> np.ndarray:
     if x is None or isinstance(x, (str, bytes, dict, set)):
         raise ValidationError(f"{name} must be {expected}, got {type(x).__name__}")
+    if isinstance(x, np.ndarray) and x.dtype.kind in "cUSOV":
+        raise ValidationError(f"{name} must be {expected}, got an array of dtype {x.dtype}")
     try:
-        a = np.asarray(x, dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", np.exceptions.ComplexWarning)
+            a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError, OverflowError) as exc:
         raise ValidationError(f"{name} must be {expected}: {exc}") from None
+    return a
+
+
+def as_float_array(x, name: str, *, shape=None, finite: bool = True, low=None,
+                   expected: str | None = None) -> np.ndarray:
+    """A float64 array of the given ``shape`` (``None`` entries match any length).
+
+    Non-numeric input (str, None, dicts, complex, object arrays) is rejected; so are NaN
+    and +-inf when ``finite`` (otherwise the caller checks them) and values below ``low``
+    when given.
+    """
+    what = expected or ("a float array" + (f" of shape {tuple('*' if d is None else d for d in shape)}"
+                                           if shape is not None else ""))
+    if isinstance(x, (bool, np.bool_)) or (isinstance(x, np.ndarray) and x.dtype.kind in "cUSOVb"):
+        raise ValidationError(f"{name} must be {what}, got {_describe(x)}")
+    if isinstance(x, complex):
+        raise ValidationError(f"{name} must be {what}, got complex {x!r}")
+    a = _as_float_array(x, name, what)
+    if shape is not None and (a.ndim != len(shape) or any(d is not None and d != n for d, n in zip(shape, a.shape))):
+        raise ValidationError(f"{name} must be {what}, got shape {a.shape}")
+    if finite and not np.all(np.isfinite(a)):
+        raise ValidationError(f"{name} must be finite, got {_describe(x)}")
+    if low is not None and np.any(a < low):
+        raise ValidationError(f"{name} must be >= {low}, got {_describe(x)}")
     return a
 
 
@@ -227,3 +270,86 @@ def as_path(x, name: str = "path", *, must_exist: bool = True, kind: str = "file
         if kind == "dir" and not p.is_dir():
             raise ValidationError(f"{name} must be a directory, got {p}")
     return p
+
+
+def as_bool(x, name: str) -> bool:
+    """A flag: bool, numpy bool, or the integers 0 and 1."""
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (numbers.Integral, np.integer)) and int(x) in (0, 1):
+        return bool(x)
+    raise ValidationError(f"{name} must be True or False, got {type(x).__name__} {_describe(x)}")
+
+
+def as_name(x, name: str, *, allow_none: bool = True) -> str | None:
+    """A label: a str (or None when ``allow_none``)."""
+    if x is None and allow_none:
+        return None
+    if not isinstance(x, str):
+        expected = "a str or None" if allow_none else "a str"
+        raise ValidationError(f"{name} must be {expected}, got {type(x).__name__} {_describe(x)}")
+    return x
+
+
+def as_instance(x, types, name: str, *, allow_none: bool = False, expected: str | None = None):
+    """Return ``x`` if it is an instance of ``types`` (or None when ``allow_none``)."""
+    if x is None and allow_none:
+        return None
+    if not isinstance(x, types):
+        if expected is None:
+            tt = types if isinstance(types, tuple) else (types,)
+            expected = " or ".join(t.__name__ for t in tt)
+        raise ValidationError(f"{name} must be a {expected}, got {type(x).__name__} {_describe(x)}")
+    return x
+
+
+def as_callable(x, name: str, *, allow_none: bool = False):
+    """Return ``x`` if it can be called (or None when ``allow_none``)."""
+    if x is None and allow_none:
+        return None
+    if not callable(x):
+        raise ValidationError(f"{name} must be callable, got {type(x).__name__} {_describe(x)}")
+    return x
+
+
+def as_sequence(x, name: str, *, of=None, min_len: int = 0, max_len: int | None = None,
+                expected: str | None = None) -> list:
+    """A list, tuple or other finite iterable (not a str, bytes, dict or array scalar) as a list.
+
+    With ``of`` (a type or tuple of types) every element must be an instance of it.
+    """
+    what = expected or ("a list" + (f" of {of.__name__ if isinstance(of, type) else 'items'}" if of else ""))
+    if isinstance(x, (str, bytes, dict, set, frozenset)) or x is None or (
+            isinstance(x, np.ndarray) and x.ndim == 0):
+        raise ValidationError(f"{name} must be {what}, got {type(x).__name__} {_describe(x)}")
+    try:
+        items = list(x)
+    except TypeError:
+        raise ValidationError(f"{name} must be {what}, got {type(x).__name__} {_describe(x)}") from None
+    if len(items) < min_len:
+        raise ValidationError(f"{name} must hold at least {min_len} item(s), got {len(items)}")
+    if max_len is not None and len(items) > max_len:
+        raise ValidationError(f"{name} must hold at most {max_len} items, got {len(items)}")
+    if of is not None:
+        for i, e in enumerate(items):
+            if not isinstance(e, of):
+                raise ValidationError(f"{name}[{i}] must be {what.removeprefix('a list of ')}, "
+                                      f"got {type(e).__name__} {_describe(e)}")
+    return items
+
+
+def as_mapping(x, name: str, *, of=None, min_len: int = 0, expected: str | None = None) -> dict:
+    """A mapping (dict-like) as a dict; with ``of`` every value must be an instance of it."""
+    from collections.abc import Mapping
+
+    what = expected or "a dict"
+    if not isinstance(x, Mapping):
+        raise ValidationError(f"{name} must be {what}, got {type(x).__name__} {_describe(x)}")
+    d = dict(x)
+    if len(d) < min_len:
+        raise ValidationError(f"{name} must hold at least {min_len} item(s), got {len(d)}")
+    if of is not None:
+        for k, v in d.items():
+            if not isinstance(v, of):
+                raise ValidationError(f"{name}[{k!r}] has the wrong type: {type(v).__name__} {_describe(v)}")
+    return d

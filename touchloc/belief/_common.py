@@ -27,9 +27,20 @@ def check_model(model) -> MeasurementModel:
     return model
 
 
+def check_dynamics(dynamics):
+    """None, or an object with ``sample(poses, *, rng)`` (e.g. models.GaussianDynamics)."""
+    if dynamics is not None and not callable(getattr(dynamics, "sample", None)):
+        raise ValidationError(f"dynamics must be None or a motion model with sample(poses, rng=...) "
+                              f"(e.g. GaussianDynamics), got {type(dynamics).__name__}")
+    return dynamics
+
+
 def check_region(region, model) -> PoseRegion:
     if not isinstance(region, PoseRegion):
         raise ValidationError(f"region must be a PoseRegion, got {type(region).__name__}")
+    if region.dim == 0:
+        raise ValidationError("the region has no free degree of freedom (half_extent 0 and a fixed rotation): "
+                              "the pose is already known and there is nothing to estimate")
     if region.rho is None:
         region = region.with_rho(model.obj.radius)
     return region

@@ -8,6 +8,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._util import as_rng
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_count, as_nonnegative_float, as_positive_float,
+                         as_probability)
 from ..errors import ValidationError
 from ..geometry import make_poses
 from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate
@@ -42,8 +44,11 @@ class AnnealedParticleFilter:
     def __init__(self, model, n_particles: int = 5000, *, survival: float = 0.5, max_layers: int = 40,
                  diffusion: float = 0.5, rho: float | None = None, rng=None):
         self.model = check_model(model)
-        if not 0 < survival < 1:
-            raise ValidationError(f"survival must be in (0, 1), got {survival}")
+        n_particles = as_count(n_particles, "n_particles", max=MAX_PARTICLES, why=WHY_PARTICLES)
+        survival = as_probability(survival, "survival", open_low=True, open_high=True)
+        max_layers = as_count(max_layers, "max_layers", max=10_000, why="each layer is one likelihood pass")
+        diffusion = as_nonnegative_float(diffusion, "diffusion")
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
         self.n_particles = int(n_particles)
         self.survival = float(survival)
         self.max_layers = int(max_layers)
@@ -108,6 +113,9 @@ class ManifoldParticleFilter:
     def __init__(self, model, n_particles: int = 5000, *, rho: float | None = None, rng=None,
                  max_rounds: int = 20):
         self.model = check_model(model)
+        n_particles = as_count(n_particles, "n_particles", max=MAX_PARTICLES, why=WHY_PARTICLES)
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
+        max_rounds = as_count(max_rounds, "max_rounds", max=10_000, why="each round is one likelihood pass")
         self.n_particles = int(n_particles)
         self.rho = rho
         self.rng = as_rng(rng)

@@ -8,8 +8,9 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.special import logsumexp
 
+from .._validate import as_positive_float
 from ..errors import ValidationError
-from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate, measurement
+from ._common import check_contacts, check_dynamics, check_model, check_region, finite_loglik, flag_degenerate, measurement
 from .particles import ParticleBelief
 from .region import PoseRegion
 
@@ -34,9 +35,10 @@ class HistogramFilter:
     def __init__(self, model, dynamics=None, *, resolution: float = 0.002,
                  angular_resolution: float = np.radians(2.0), rho: float | None = None, rng=None):
         self.model = check_model(model)
-        if not (resolution > 0 and angular_resolution > 0):
-            raise ValidationError("resolution and angular_resolution must be > 0")
-        self.dynamics = dynamics
+        resolution = as_positive_float(resolution, "resolution (m)")
+        angular_resolution = as_positive_float(angular_resolution, "angular_resolution (rad)")
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
+        self.dynamics = check_dynamics(dynamics)
         self.resolution = float(resolution)
         self.angular_resolution = float(angular_resolution)
         self.rho = rho

@@ -8,6 +8,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._util import as_rng
+from .._validate import as_bool, as_mapping, as_nonnegative_float
 from ..errors import BeliefDegenerateError, ValidationError
 from ._common import check_contacts
 from .region import PoseRegion
@@ -87,6 +88,10 @@ def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | 
         raise ValidationError("models must be a non-empty mapping of name -> measurement model")
     contacts = check_contacts(contacts)
     rng = as_rng(rng)
+    return_beliefs = as_bool(return_beliefs, "return_beliefs")
+    if prior is not None:
+        prior = as_mapping(prior, "prior", expected="a dict name -> probability")
+        prior = {k: as_nonnegative_float(v, f"prior[{k!r}]") for k, v in prior.items()}
     names = list(models)
     if prior is None:
         log_prior = np.full(len(names), -np.log(len(names)))

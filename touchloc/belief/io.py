@@ -11,11 +11,13 @@ parameters as a JSON string ``model`` and ``degenerate``/``resolution``.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._validate import as_mapping, as_path, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
 from .particles import ParticleBelief
@@ -35,9 +37,7 @@ def pose_to_dict(T) -> dict:
     T : (4, 4) float
         T_world_object.
     """
-    T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValidationError(f"pose must be a finite (4, 4) matrix, got {T.shape}")
+    T = as_pose(T, "pose")
     return {"matrix": T.tolist(), "quat_xyzw": Rotation.from_matrix(T[:3, :3]).as_quat().tolist(),
             "translation": T[:3, 3].tolist()}
 
@@ -64,6 +64,8 @@ def save_belief(path, belief: ParticleBelief, *, contacts: Contacts | None = Non
     """
     if not isinstance(belief, ParticleBelief):
         raise ValidationError(f"belief must be a ParticleBelief, got {type(belief).__name__}")
+    path = as_path(path, "path", must_exist=False)
+    extra = {} if extra is None else as_mapping(extra, "extra")
     out = {"format_version": np.int64(FORMAT_VERSION), "poses": belief.poses, "log_weights": belief.log_weights,
            "map_pose": belief.map_pose(), "degenerate": np.bool_(belief.degenerate),
            "resolution": np.float64(np.nan if belief.resolution is None else belief.resolution)}
@@ -79,14 +81,19 @@ def save_belief(path, belief: ParticleBelief, *, contacts: Contacts | None = Non
         out["contact_points"] = contacts.points
         if contacts.has_normals:
             out["contact_normals"] = contacts.normals
-    meta = dict(extra or {})
+    meta = dict(extra)
     if model is not None:
         meta["model"] = {"class": type(model).__name__, "sigma_pos": getattr(model, "sigma_pos", None),
                          "sigma_nor": getattr(model, "sigma_nor", None),
                          "mesh": getattr(getattr(model, "obj", None), "name", None)}
-    out["meta"] = np.str_(json.dumps(meta))
-    path = Path(path)
-    np.savez(path, **out)
+    try:
+        out["meta"] = np.str_(json.dumps(meta))
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"extra must be JSON-serialisable: {exc}") from None
+    try:
+        np.savez(path, **out)
+    except OSError as exc:
+        raise ValidationError(f"cannot write the belief file {path}: {exc}") from None
     return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
 
 
@@ -100,13 +107,15 @@ def load_belief(path):
         pose), ``model`` (dict of model parameters) and any ``extra`` facts.
     contacts : Contacts or None
     """
-    p = Path(path)
+    p = as_path(path, "path", must_exist=False)
     if not p.is_file():
         raise ValidationError(f"{path}: no such belief file (expected an .npz written by save_belief / --save)")
     try:
         z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ValidationError(f"{path}: not a belief file (.npz): {exc}") from None
+    if not hasattr(z, "files"):
+        raise ValidationError(f"{path}: not a belief file: it holds one array, not an .npz archive")
     with z:
         if "poses" not in z.files or "log_weights" not in z.files:
             raise ValidationError(f"{path}: not a belief file: it has no 'poses' and 'log_weights' arrays")

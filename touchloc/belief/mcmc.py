@@ -8,7 +8,8 @@ import time
 import numpy as np
 
 from .._util import as_rng
-from ..errors import ValidationError
+from .._validate import as_bool, as_count
+from ..errors import BeliefDegenerateError, ValidationError
 from ._common import check_contacts, check_model, check_region
 from .particles import ParticleBelief
 from .region import PoseRegion
@@ -38,6 +39,11 @@ class MCMC:
     def __init__(self, model, *, n_walkers: int = 32, n_steps: int = 300, burn: int = 200, thin: int = 5,
                  rng=None, progress: bool = False):
         self.model = check_model(model)
+        n_walkers = as_count(n_walkers, "n_walkers", min=2, max=100_000, why="each walker is one likelihood per step")
+        n_steps = as_count(n_steps, "n_steps", max=1_000_000, why="each step is one likelihood pass over the walkers")
+        burn = as_count(burn, "burn", min=0, max=1_000_000, why="each step is one likelihood pass over the walkers")
+        thin = as_count(thin, "thin", max=n_steps, why="thinning must keep at least one step")
+        progress = as_bool(progress, "progress")
         self.n_walkers, self.n_steps, self.burn, self.thin = int(n_walkers), int(n_steps), int(burn), int(thin)
         self.rng = as_rng(rng)
         self.progress = progress
@@ -80,7 +86,14 @@ class MCMC:
 
         sampler = emcee.EnsembleSampler(self.n_walkers, dim, log_prob, vectorize=True)
         sampler.random_state = np.random.RandomState(int(self.rng.integers(2**32 - 1))).get_state()
-        sampler.run_mcmc(v0, self.burn + self.n_steps, progress=self.progress)
+        if not np.all(np.isfinite(v0)):
+            raise BeliefDegenerateError("the start belief maps to non-finite chain coordinates; "
+                                        "check its poses, resolution and the region's rho")
+        try:
+            sampler.run_mcmc(v0, self.burn + self.n_steps, progress=self.progress)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            # emcee checks that the walkers span a volume (an SVD) and that log_prob is not NaN
+            raise BeliefDegenerateError(f"the MCMC chain could not run from this start belief: {exc}") from exc
         chain = sampler.get_chain(discard=self.burn, thin=self.thin, flat=True)
         X = region.from_local(chain, ref)
         logger = logging.getLogger("emcee.autocorr")

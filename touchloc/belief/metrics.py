@@ -6,9 +6,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._util import as_poses, as_rng
-from .._validate import as_count, as_nonnegative_float, as_pose, as_positive_float
+from .._validate import (as_bool, as_count, as_float_array, as_instance, as_nonnegative_float, as_pose,
+                         as_positive_float)
 from .._validate import as_poses as _valid_poses
 from ..errors import ValidationError
+from ..models import MeshObject
+from ..models.symmetry import Symmetry
 from ..geometry import rotation_angle
 
 __all__ = ["add_s", "add", "pose_errors", "symmetric_pose_error", "credible_level", "hpd_level",
@@ -50,9 +53,12 @@ def add_s(obj, T_est, T_true, *, n: int = 500, rng=0, surface: bool = True):
     -------
     float, or (N,) float for a batch of estimates
     """
+    obj = as_instance(obj, MeshObject, "obj")
+    n = as_count(n, "n", max=100_000, why="model points per pose")
+    surface = as_bool(surface, "surface")
     single = np.asarray(T_est).shape == (4, 4)
-    E = as_poses(T_est)
-    T = np.asarray(T_true, dtype=float).reshape(4, 4)
+    E = as_poses(T_est, "T_est")
+    T = as_pose(T_true, "T_true")
     p = _model_points(obj, n, rng)
     q = p[None] @ np.transpose(E[:, :3, :3], (0, 2, 1)) + E[:, None, :3, 3]  # (N, n, 3) world
     if surface:
@@ -66,9 +72,11 @@ def add_s(obj, T_est, T_true, *, n: int = 500, rng=0, surface: bool = True):
 
 def add(obj, T_est, T_true, *, n: int = 500, rng=0) -> float:
     """ADD (m): mean distance between corresponding model points at the two poses."""
+    obj = as_instance(obj, MeshObject, "obj")
+    n = as_count(n, "n", max=100_000, why="model points per pose")
+    T_est = as_pose(T_est, "T_est")
+    T_true = as_pose(T_true, "T_true")
     p = _model_points(obj, n, rng)
-    T_est = np.asarray(T_est, float)
-    T_true = np.asarray(T_true, float)
     a = p @ T_est[:3, :3].T + T_est[:3, 3]
     b = p @ T_true[:3, :3].T + T_true[:3, 3]
     return float(np.linalg.norm(a - b, axis=1).mean())
@@ -76,8 +84,8 @@ def add(obj, T_est, T_true, *, n: int = 500, rng=0) -> float:
 
 def pose_errors(T_est, T_true):
     """(translation error (m), rotation error (rad)) between two poses."""
-    T_est = np.asarray(T_est, float)
-    T_true = np.asarray(T_true, float)
+    T_est = as_pose(T_est, "T_est")
+    T_true = as_pose(T_true, "T_true")
     return (float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])),
             float(rotation_angle(T_est[:3, :3], T_true[:3, :3])))
 
@@ -104,9 +112,11 @@ def symmetric_pose_error(obj, T_est, T_true, *, symmetry=None):
     rotation : float or (N,) float
         Radians.
     """
+    obj = as_instance(obj, MeshObject, "obj")
+    symmetry = as_instance(symmetry, Symmetry, "symmetry", allow_none=True)
     single = np.asarray(T_est).shape == (4, 4)
-    E = as_poses(T_est)
-    T = np.asarray(T_true, dtype=float).reshape(4, 4)
+    E = as_poses(T_est, "T_est")
+    T = as_pose(T_true, "T_true")
     sym = obj.symmetries() if symmetry is None else symmetry
     c = sym.center
     dt = np.linalg.norm(E[:, :3, :3] @ c + E[:, :3, 3] - (T[:3, :3] @ c + T[:3, 3]), axis=1)
@@ -135,6 +145,12 @@ def credible_level(belief, T_true, obj, *, radius: float | None = None, rho: flo
     rho : float, optional
         Metres per radian; default the belief's ``rho``, else the object's bounding radius.
     """
+    from .particles import ParticleBelief
+
+    belief = as_instance(belief, ParticleBelief, "belief")
+    obj = as_instance(obj, MeshObject, "obj")
+    radius = None if radius is None else as_positive_float(radius, "radius (m)")
+    rho = None if rho is None else as_positive_float(rho, "rho (m)")
     r = radius if radius is not None else (belief.resolution or 0.002)
     rho = rho if rho is not None else (belief.rho if belief.rho is not None else obj.radius)
     order = np.argsort(-belief.log_weights, kind="stable")
@@ -262,10 +278,10 @@ def belief_coverage(belief, T_true, obj, levels=(0.5, 0.9, 0.95), *, method: str
     to average over trials. Keyword arguments go to that function. Averaged over trials,
     the fraction of True at level ``a`` should be close to ``a``.
     """
-    lv = np.asarray(levels, dtype=float).reshape(-1)
+    lv = as_float_array(levels, "levels", expected="credible levels in (0, 1]").reshape(-1)
     if np.any((lv <= 0) | (lv > 1)):
         raise ValidationError(f"levels must be in (0, 1], got {lv.tolist()}")
-    if method not in ("balls", "hpd"):
+    if not isinstance(method, str) or method not in ("balls", "hpd"):
         raise ValidationError(f"method must be 'balls' or 'hpd', got {method!r}")
     q = (credible_level if method == "balls" else hpd_level)(belief, T_true, obj, **kwargs)
     return {float(a): bool(q < a) for a in lv}

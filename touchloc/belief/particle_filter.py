@@ -7,8 +7,10 @@ import time
 import numpy as np
 
 from .._util import as_rng
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_count, as_nonnegative_float, as_positive_float,
+                         as_probability)
 from ..errors import ValidationError
-from ._common import check_contacts, check_model, check_region, finite_loglik, flag_degenerate, measurement
+from ._common import check_contacts, check_dynamics, check_model, check_region, finite_loglik, flag_degenerate, measurement
 from .particles import ParticleBelief
 from .region import PoseRegion
 
@@ -36,11 +38,11 @@ class ParticleFilter:
     def __init__(self, model, dynamics=None, n_particles: int = 5000, *, resample_threshold: float = 0.5,
                  roughening: float = 0.2, rho: float | None = None, rng=None):
         self.model = check_model(model)
-        if int(n_particles) < 1:
-            raise ValidationError(f"n_particles must be a positive integer, got {n_particles}")
-        if not 0 <= resample_threshold <= 1:
-            raise ValidationError("resample_threshold must be in [0, 1]")
-        self.dynamics = dynamics
+        n_particles = as_count(n_particles, "n_particles", max=MAX_PARTICLES, why=WHY_PARTICLES)
+        resample_threshold = as_probability(resample_threshold, "resample_threshold")
+        roughening = as_nonnegative_float(roughening, "roughening")
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
+        self.dynamics = check_dynamics(dynamics)
         self.n_particles = int(n_particles)
         self.resample_threshold = float(resample_threshold)
         self.roughening = float(roughening)

@@ -7,6 +7,8 @@ from scipy.spatial.transform import Rotation
 from scipy.special import logsumexp
 
 from .._util import as_poses, as_rng
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_instance,
+                         as_mapping, as_positive_float)
 from ..errors import BeliefDegenerateError, ValidationError
 from .region import PoseRegion
 
@@ -28,6 +30,14 @@ def register_resampler(name: str):
 @register_resampler("systematic")
 def systematic_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
     """Systematic resampling: one uniform offset, n evenly spaced pointers (low variance)."""
+    weights = as_float_array(weights, "weights", shape=(None,), low=0.0)
+    n = as_count(n, "n", max=MAX_PARTICLES, why=WHY_PARTICLES)
+    rng = as_rng(rng)
+    if not weights.size or not weights.sum() > 0:
+        raise BeliefDegenerateError("weights must hold at least one positive entry to resample from")
+    total = weights.sum()
+    if abs(total - 1.0) > 1e-9:  # normalised weights are used as they are, bit for bit
+        weights = weights / total
     cs = np.cumsum(weights)
     cs[-1] = 1.0
     u = (rng.random() + np.arange(n)) / n
@@ -73,7 +83,7 @@ class ParticleBelief:
         if log_weights is None:
             lw = np.full(len(P), -np.log(len(P)))
         else:
-            lw = np.asarray(log_weights, dtype=float).reshape(-1)
+            lw = as_float_array(log_weights, "log_weights", finite=False).reshape(-1)
             if lw.shape != (len(P),):
                 raise ValidationError(f"log_weights must be ({len(P)},), got {lw.shape}")
             if np.any(np.isnan(lw)) or np.any(lw == np.inf):
@@ -84,6 +94,11 @@ class ParticleBelief:
                     "every particle has zero weight (all log-likelihoods are -inf): no pose in "
                     "the region explains the measurements")
             lw = lw - (top + np.log(np.sum(np.exp(lw - top))))
+        region = as_instance(region, PoseRegion, "region", allow_none=True)
+        resolution = None if resolution is None else as_positive_float(resolution, "resolution")
+        info = {} if info is None else as_mapping(info, "info")
+        degenerate = as_bool(degenerate, "degenerate")
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
         self.poses = P
         self.log_weights = lw
         self.region = region

@@ -6,6 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._util import as_poses, as_rng
+from .._validate import as_float_array, as_positive_float
 from ..errors import ValidationError
 from ..geometry import make_poses
 
@@ -42,8 +43,11 @@ class PoseRegion:
 
     def __init__(self, center, half_extent, rotation="full", *, base_rotation=None,
                  yaw_range=(-np.pi, np.pi), rho: float | None = None):
-        c = np.asarray(center, dtype=float).reshape(-1)
-        h = np.broadcast_to(np.asarray(half_extent, dtype=float), (3,)).copy()
+        c = as_float_array(center, "center (m)", finite=False, expected="3 finite numbers").reshape(-1)
+        h = as_float_array(half_extent, "half_extent (m)", finite=False, expected="a number or 3 numbers")
+        if h.size not in (1, 3):
+            raise ValidationError(f"half_extent must be a number or 3 numbers (m), got shape {h.shape}")
+        h = np.broadcast_to(h.reshape(-1), (3,)).copy()
         if c.shape != (3,) or not np.all(np.isfinite(c)):
             raise ValidationError(f"center must be 3 finite numbers (m), got {center!r}")
         if not np.all(np.isfinite(h)) or np.any(h < 0):
@@ -54,20 +58,20 @@ class PoseRegion:
             self.rotation = rotation
             self.fixed_rotation = None
         else:
-            R = np.asarray(rotation, dtype=float)
+            R = as_float_array(rotation, "rotation", finite=False, expected="'full', 'yaw' or a (3, 3) matrix")
             if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
                 raise ValidationError("a fixed rotation must be a proper (3, 3) rotation matrix")
             self.rotation = "fixed"
             self.fixed_rotation = R
-        B = np.eye(3) if base_rotation is None else np.asarray(base_rotation, dtype=float)
+        B = np.eye(3) if base_rotation is None else as_float_array(base_rotation, "base_rotation", shape=(3, 3))
         if B.shape != (3, 3) or not np.allclose(B @ B.T, np.eye(3), atol=1e-6):
             raise ValidationError("base_rotation must be a (3, 3) rotation matrix")
-        lo, hi = (float(v) for v in yaw_range)
+        lo, hi = as_float_array(yaw_range, "yaw_range (rad)", shape=(2,), expected="(lo, hi)")
         if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo and hi - lo <= 2 * np.pi + 1e-12):
             raise ValidationError(f"yaw_range must be (lo, hi) with 0 < hi - lo <= 2 pi, got {yaw_range!r}")
         self.center, self.half_extent, self.base_rotation = c, h, B
         self.yaw_range = (lo, hi)
-        self.rho = None if rho is None else float(rho)
+        self.rho = None if rho is None else as_positive_float(rho, "rho (m)")
 
     # -- constructors ----------------------------------------------------------------
     @classmethod
@@ -79,18 +83,21 @@ class PoseRegion:
     def planar(cls, center=(0.0, 0.0), half_extent=0.05, *, z: float = 0.0, yaw_range=(-np.pi, np.pi),
                base_rotation=None, rho: float | None = None) -> "PoseRegion":
         """x, y and yaw on a table at height ``z`` (3 DOF)."""
-        c = np.asarray(center, dtype=float).reshape(-1)
-        if c.shape != (2,):
-            raise ValidationError(f"planar center must be (x, y), got {center!r}")
-        h = np.broadcast_to(np.asarray(half_extent, dtype=float), (2,))
+        c = as_float_array(center, "planar center (m)", shape=(2,), expected="(x, y)")
+        h = as_float_array(half_extent, "planar half_extent (m)", expected="a number or (hx, hy)")
+        if h.size not in (1, 2):
+            raise ValidationError(f"planar half_extent must be a number or (hx, hy), got shape {h.shape}")
+        h = np.broadcast_to(h.reshape(-1), (2,))
+        z = float(as_float_array(z, "z (m)", shape=()))
         return cls((c[0], c[1], z), (h[0], h[1], 0.0), "yaw", base_rotation=base_rotation,
                    yaw_range=yaw_range, rho=rho)
 
     def with_rho(self, rho: float) -> "PoseRegion":
         """A copy with the rotation scale set (m)."""
+        rho = as_positive_float(rho, "rho (m)")
         r = PoseRegion.__new__(PoseRegion)
         r.__dict__.update(self.__dict__)
-        r.rho = float(rho)
+        r.rho = rho
         return r
 
     # -- shape -----------------------------------------------------------------------
@@ -230,7 +237,10 @@ class PoseRegion:
         rng = as_rng(rng)
         P = as_poses(poses)
         n, d = len(P), self.dim
-        s = np.broadcast_to(np.asarray(scale, dtype=float), (n,))
+        s = as_float_array(scale, "scale", low=0.0, expected="a finite scale >= 0 (or one per pose)")
+        if s.shape not in ((), (1,), (n,)):
+            raise ValidationError(f"scale must be one number or one per pose ({n},), got shape {s.shape}")
+        s = np.broadcast_to(s.reshape(-1) if s.ndim else s, (n,))
         if ball:
             g = rng.normal(size=(n, d))
             g /= np.linalg.norm(g, axis=1, keepdims=True)

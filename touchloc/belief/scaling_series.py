@@ -9,9 +9,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._util import as_rng, progress
-from .._validate import as_count
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
+                         as_probability)
 from ..errors import ValidationError
-from ._common import (ball_volume, check_contacts, check_model, check_region, finite_loglik,
+from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
@@ -94,6 +95,16 @@ class ScalingSeries:
                  n_posterior: int = 500, final_stages: int = 20, dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
+        delta_final = None if delta_final is None else as_positive_float(delta_final, "delta_final (m)")
+        m_per_delta = as_count(m_per_delta, "m_per_delta", max=1000, why="each sub-step is one likelihood pass")
+        n_initial = as_count(n_initial, "n_initial", max=MAX_PARTICLES, why=WHY_PARTICLES)
+        max_particles = as_count(max_particles, "max_particles", max=MAX_PARTICLES, why=WHY_PARTICLES)
+        prune = as_name(prune, "prune", allow_none=False)
+        prune_ratio = as_probability(prune_ratio, "prune_ratio", open_low=True, open_high=True)
+        anneal = anneal if isinstance(anneal, str) else as_positive_float(anneal, "anneal gain")
+        dynamics = check_dynamics(dynamics)
+        rho = None if rho is None else as_positive_float(rho, "rho (m)")
+        progress = None if progress is None else as_bool(progress, "progress")
         sp = getattr(model, "sigma_pos", None)
         self.delta_final = float(delta_final) if delta_final else (2.0 * sp if sp else 0.004)
         if not (np.isfinite(self.delta_final) and self.delta_final > 0):

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import progress
+from .._validate import (as_bool, as_callable, as_count, as_float_array, as_instance, as_mapping, as_name,
+                         as_sequence)
 from ..errors import ValidationError
 from .estimators import HistogramEstimator, count_surfaces
 from .particle import ParticleOrientationEstimator
@@ -112,8 +114,15 @@ def orientation_error(estimate, truth, n_sides) -> np.ndarray:
     -------
     (T,) float, rad
     """
+    n_sides = 0 if n_sides is None else as_count(n_sides, "n_sides", min=0, max=10_000)
+    estimate = as_float_array(estimate, "estimate (rad)")
+    truth = as_float_array(truth, "truth (rad)")
+    try:
+        np.broadcast_shapes(estimate.shape, truth.shape)
+    except ValueError:
+        raise ValidationError(f"estimate {estimate.shape} and truth {truth.shape} must have the same shape") from None
     period = TWO_PI / n_sides if n_sides else TWO_PI
-    e = np.asarray(estimate, dtype=np.float64) - np.asarray(truth, dtype=np.float64)
+    e = estimate - truth
     return (e + period / 2) % period - period / 2
 
 
@@ -123,6 +132,12 @@ def run_estimator(name: str, make, dataset, *, record: bool = False) -> Estimato
     An estimator with a ``bind(dataset)`` method (the mapped prism, which simulates its
     touches on the data set's object) is bound to the data set first.
     """
+    from .data import RotationDataset
+
+    name = as_name(name, "name", allow_none=False)
+    make = as_callable(make, "make")
+    dataset = as_instance(dataset, RotationDataset, "dataset")
+    record = as_bool(record, "record")
     est = make()
     if hasattr(est, "bind"):
         est.bind(dataset)
@@ -165,8 +180,19 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
     dict
         ``{object name: {estimator name: [EstimatorRun per data set]}}``
     """
+    from .data import RotationDataset
+
+    datasets = as_mapping(datasets, "datasets", expected="a dict {object name: [RotationDataset, ...]}")
     if not datasets:
         raise ValidationError("datasets is empty; expected {object name: [RotationDataset, ...]}")
+    datasets = {k: as_sequence(v, f"datasets[{k!r}]", of=RotationDataset) for k, v in datasets.items()}
+    if estimators is not None:
+        estimators = as_mapping(estimators, "estimators", expected="a dict {name: factory}")
+        for k, v in estimators.items():
+            as_callable(v, f"estimators[{k!r}]")
+    record = as_bool(record, "record")
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
     estimators = estimators or default_estimators(rng=0)
     jobs = [(obj, name, make, ds) for obj, dss in datasets.items() for ds in dss for name, make in estimators.items()]
     out = {obj: {name: [] for name in estimators} for obj in datasets}
@@ -182,6 +208,11 @@ def summary_table(results: dict) -> str:
     first built is arbitrary); its sd (circular, per data set, pooled) is the tracking
     jitter and drift around that offset.
     """
+    results = as_mapping(results, "results", expected="a dict {object: {estimator: [EstimatorRun, ...]}} from compare()")
+    for obj, by_est in results.items():
+        by_est = as_mapping(by_est, f"results[{obj!r}]", expected="a dict {estimator: [EstimatorRun, ...]}")
+        for name, runs in by_est.items():
+            as_sequence(runs, f"results[{obj!r}][{name!r}]", of=EstimatorRun, min_len=1)
     lines = ["| object | estimator | right count, 2nd half | count, 2nd half (mean ± sd) | "
              "per data set | orientation error, 2nd half: RMS / sd | time per step |",
              "|---|---|---|---|---|---|---|"]

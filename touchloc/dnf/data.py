@@ -34,6 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from .._util import as_rng
+from .._validate import (as_count, as_float, as_float_array, as_instance, as_name, as_nonnegative_float,
+                         as_path, as_positive_float, as_probability, as_sequence)
 from ..errors import ValidationError
 
 __all__ = ["RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording",
@@ -77,10 +79,13 @@ class RotationDataset:
     _splits: list = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
-        self.time = np.asarray(self.time, dtype=np.float64)
-        self.odometry = np.asarray(self.odometry, dtype=np.float64)
-        self.normal_angles = np.asarray(self.normal_angles, dtype=np.float64)
+        self.time = as_float_array(self.time, "time", finite=False)
+        self.odometry = as_float_array(self.odometry, "odometry", finite=False)
+        self.normal_angles = as_float_array(self.normal_angles, "normal_angles", finite=False)
         self.sample_index = np.asarray(self.sample_index)
+        if self.n_surfaces is not None:
+            self.n_surfaces = as_count(self.n_surfaces, "n_surfaces", min=0, max=10_000)
+        self.name = as_name(self.name, "name", allow_none=False)
         T = self.time.shape[0] if self.time.ndim == 1 else -1
         if self.time.ndim != 1 or T == 0:
             raise ValidationError(f"time must be a non-empty 1-D array, got shape {self.time.shape}")
@@ -103,7 +108,7 @@ class RotationDataset:
         if self.sample_index.size and (self.sample_index[0] < 0 or self.sample_index[-1] >= T):
             raise ValidationError(f"sample_index must lie in [0, {T - 1}]")
         if self.true_orientation is not None:
-            self.true_orientation = np.asarray(self.true_orientation, dtype=np.float64)
+            self.true_orientation = as_float_array(self.true_orientation, "true_orientation")
             if self.true_orientation.shape != (T,):
                 raise ValidationError(f"true_orientation must have shape ({T},), got {self.true_orientation.shape}")
         self._splits = np.split(self.normal_angles, np.cumsum(counts)[:-1])
@@ -131,9 +136,25 @@ class RotationDataset:
 SEED_FAITHFUL = dict(normals_per_contact=(1, 2), noise=np.radians(3.0), drop=0.1, normal_source="pad")
 
 
+def _range(x, name, low, high, *, low_open=True):
+    """A (lo, hi) pair of finite floats with low < lo <= hi <= high (low <= lo when closed)."""
+    lo, hi = as_float_array(x, name, shape=(2,), expected="a (low, high) pair of finite numbers")
+    if not (lo > low if low_open else lo >= low) or not lo <= hi <= high:
+        raise ValidationError(f"{name} must be (low, high) with {low} {'<' if low_open else '<='} low <= high "
+                              f"<= {high:g}, got {(float(lo), float(hi))}")
+    return float(lo), float(hi)
+
+
+#: the generator keeps every sample in memory; more than this is a typing error
+MAX_SAMPLES = 10_000_000
+
+
 def _count(spec, name):
     """``normals_per_contact`` as a (lo, hi) int range with 1 <= lo <= hi <= 40."""
+    if isinstance(spec, (str, bytes, bool, np.bool_)) or not (np.isscalar(spec) or np.shape(spec) == (2,)):
+        raise ValidationError(f"{name} must be an int or an (lo, hi) int range within 1..40, got {spec!r}")
     lo, hi = (spec, spec) if np.isscalar(spec) else tuple(spec)
+    lo, hi = as_float(lo, name), as_float(hi, name)
     if int(lo) != lo or int(hi) != hi or not 1 <= lo <= hi <= 40:
         raise ValidationError(f"{name} must be an int or an (lo, hi) int range within 1..40, got {spec!r}")
     return int(lo), int(hi)
@@ -227,13 +248,24 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     """
     if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
         raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
-    if not (np.isfinite(revolutions) and revolutions > 0):
-        raise ValidationError(f"revolutions must be positive, got {revolutions!r}")
-    if not (np.isfinite(noise) and noise >= 0):
-        raise ValidationError(f"noise must be a non-negative angle in rad, got {noise!r}")
-    if not (0.0 <= drop < 1.0):
-        raise ValidationError(f"drop must be a probability in [0, 1), got {drop!r}")
-    if normal_source not in ("face", "pad"):
+    revolutions = as_positive_float(revolutions, "revolutions")
+    rate_hz = _range(rate_hz, "rate_hz", 0.0, 1e6)
+    diameter = as_positive_float(diameter, "diameter (m)")
+    under_estimate = _range(under_estimate, "under_estimate", 0.0, 0.99, low_open=False)
+    slip_std = as_float(slip_std, "slip_std (rad)", low=0.0, high=np.pi)
+    stroke = _range(stroke, "stroke (rad)", 0.0, TWO_PI)
+    step = as_float(step, "step (rad)", low=1e-4, high=np.pi)
+    face_fraction = as_probability(face_fraction, "face_fraction")
+    noise = as_nonnegative_float(noise, "noise (rad)")
+    drop = as_probability(drop, "drop", open_high=True)
+    pad_radius = as_positive_float(pad_radius, "pad_radius (m)")
+    centroid_std = as_nonnegative_float(centroid_std, "centroid_std (m)")
+    name = as_name(name, "name", allow_none=False)
+    n_samples = TWO_PI * revolutions * max(2.0 / stroke[0], 1.3 / step)
+    if n_samples > MAX_SAMPLES:
+        raise ValidationError(f"revolutions, stroke and step ask for about {n_samples:.3g} samples; at most "
+                              f"{MAX_SAMPLES:.0e} are generated (every sample is kept in memory)")
+    if not isinstance(normal_source, str) or normal_source not in ("face", "pad"):
         raise ValidationError(f"normal_source must be 'face' or 'pad', got {normal_source!r}")
     if normal_source == "pad" and not (pad_radius > 0 and centroid_std >= 0):
         raise ValidationError(f"pad_radius must be > 0 and centroid_std >= 0 (m), got {pad_radius!r}, "
@@ -318,6 +350,9 @@ def standard_datasets(objects=("6-gon", "8-gon", "round"), n_per_object: int = 5
         seed ``(seed, index of o in OBJECTS, i)``.
     """
     names = list(OBJECTS)
+    objects = as_sequence(objects, "objects", of=str, expected=f"a list of object names from {names}")
+    n_per_object = as_count(n_per_object, "n_per_object", max=10_000, why="each data set is simulated and kept")
+    seed = as_count(seed, "seed", min=0)
     out = {}
     for obj in objects:
         if obj not in OBJECTS:
@@ -330,7 +365,8 @@ def standard_datasets(objects=("6-gon", "8-gon", "round"), n_per_object: int = 5
 
 def save_recording(ds: RotationDataset, path) -> Path:
     """Write a data set as ``.csv`` or ``.npz`` (chosen by the suffix); returns the path."""
-    path = Path(path)
+    ds = as_instance(ds, RotationDataset, "ds")
+    path = as_path(path, "path", must_exist=False)
     if path.suffix == ".npz":
         extra = {}
         if ds.true_orientation is not None:
@@ -368,9 +404,11 @@ def load_recording(path) -> RotationDataset:
     ValidationError
         If the file is missing, empty, lacks a column or holds non-finite values.
     """
-    path = Path(path)
+    path = as_path(path, "path", must_exist=False)
     if not path.exists():
         raise ValidationError(f"no recording at {path}")
+    if not path.is_file():
+        raise ValidationError(f"recording path must be a file, got {path}")
     if path.suffix == ".npz":
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in ("time", "odometry", "normal_angles", "sample_index") if k not in z]

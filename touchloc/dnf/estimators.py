@@ -17,6 +17,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
+from .._validate import as_count, as_float, as_float_array
 from ..errors import ValidationError
 from .tracker import as_angles, as_odometry
 
@@ -40,10 +41,11 @@ def _as_activation(activation) -> np.ndarray:
 def surface_peaks(activation, *, sigma: float = np.radians(3.0), threshold: float = 0.4) -> np.ndarray:
     """Orientations (rad) of the peaks counted by :func:`count_surfaces`; (n_peaks,) float."""
     a = _as_activation(activation)
-    if not (np.isfinite(sigma) and sigma >= 0):
-        raise ValidationError(f"sigma must be a non-negative angle in rad, got {sigma!r}")
+    sigma = as_float(sigma, "sigma (rad)", low=0.0, high=TWO_PI)
+    threshold = as_float(threshold, "threshold")
     n = a.size
-    s = gaussian_filter1d(a, sigma * n / TWO_PI, mode="wrap") if sigma > 0 else a
+    # below a thousandth of a site the smoothing is the identity (and scipy would divide by ~0)
+    s = gaussian_filter1d(a, sigma * n / TWO_PI, mode="wrap") if sigma * n / TWO_PI > 1e-3 else a
     # periodic peaks: find them in three copies and keep those of the middle one
     idx, _ = find_peaks(np.concatenate([s, s, s]), height=threshold)
     idx = idx[(idx >= n) & (idx < 2 * n)] - n
@@ -76,7 +78,9 @@ def count_surfaces(activation, *, sigma: float = np.radians(3.0), threshold: flo
 
 def normalize_max(a) -> np.ndarray:
     """Scale an activation (..., n) so that each row's maximum is 1 (rows of zeros stay 0)."""
-    a = np.asarray(a, dtype=np.float64)
+    a = as_float_array(a, "a", expected="a finite (..., n) activation")
+    if a.ndim < 1 or a.shape[-1] == 0:
+        raise ValidationError(f"a must be a (..., n) activation with n >= 1, got shape {a.shape}")
     m = a.max(axis=-1, keepdims=True)
     return np.divide(a, m, out=np.zeros_like(a), where=m > 0)
 
@@ -97,6 +101,7 @@ class HistogramEstimator:
     def __init__(self, n_bins: int = 360):
         if not isinstance(n_bins, (int, np.integer)) or n_bins < 3:
             raise ValidationError(f"n_bins must be an int >= 3, got {n_bins!r}")
+        n_bins = as_count(n_bins, "n_bins", min=3, max=10_000_000, why="memory: one float per bin")
         self.n_bins = int(n_bins)
         self.counts = np.zeros(self.n_bins)
         self.odometry = 0.0

@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._validate import as_count, as_float, as_instance, as_positive_float
 from ..errors import ValidationError
 
 __all__ = [
@@ -84,13 +85,9 @@ class FieldParams:
 
     def __post_init__(self):
         for name in ("tau", "beta", "sigma_exc", "sigma_inh"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValidationError(f"FieldParams.{name} must be a positive finite number, got {v!r}")
+            as_positive_float(getattr(self, name), f"FieldParams.{name}")
         for name in ("h", "c_exc", "c_inh", "c_glob"):
-            v = getattr(self, name)
-            if not np.isfinite(v):
-                raise ValidationError(f"FieldParams.{name} must be finite, got {v!r}")
+            as_float(getattr(self, name), f"FieldParams.{name}")
 
     def with_(self, **changes) -> "FieldParams":
         """A copy with some parameters changed."""
@@ -110,9 +107,13 @@ def sigmoid(u, beta: float = 4.0):
     Returns
     -------
     (...) float
-        Output in [0, 1], same dtype as ``u`` for float inputs.
+        Output in [0, 1], same dtype as ``u`` for float inputs. NaN in, NaN out: ``u`` is
+        not scanned for NaN, since this runs in every field step.
     """
+    beta = as_positive_float(beta, "beta")
     u = np.asarray(u)
+    if u.dtype.kind not in "biuf":
+        raise ValidationError(f"u must be a real array, got dtype {u.dtype}")
     half = u.dtype.type(0.5) if u.dtype.kind == "f" else 0.5
     out = np.tanh(u * (half * beta))
     out *= half
@@ -139,6 +140,9 @@ def lateral_kernel(n: int, params: FieldParams, period: float = TWO_PI) -> np.nd
     (n,) float
         ``w[i]`` is the weight from a site to the site ``i`` places away (either side).
     """
+    n = _check_n(n)
+    params = as_instance(params, FieldParams, "params")
+    period = as_positive_float(period, "period")
     d = periodic_distance(n, period)
     w = params.c_exc * np.exp(-0.5 * (d / params.sigma_exc) ** 2)
     if params.c_inh:
@@ -149,14 +153,24 @@ def lateral_kernel(n: int, params: FieldParams, period: float = TWO_PI) -> np.nd
 
 
 def circular_convolve(x, kernel_fft, n: int) -> np.ndarray:
-    """Circular convolution of (..., n) ``x`` with a kernel given by its rfft; (..., n)."""
+    """Circular convolution of (..., n) ``x`` with a kernel given by its rfft; (..., n).
+
+    NaN in, NaN out: the arrays are not scanned for NaN (this runs in every field step).
+    """
+    n = _check_n(n)
+    x = np.asarray(x)
+    k = np.asarray(kernel_fft)
+    if x.dtype.kind not in "biuf" or x.ndim < 1 or x.shape[-1] != n:
+        raise ValidationError(f"x must be a real (..., {n}) array, got {x.dtype} {x.shape}")
+    if k.dtype.kind not in "biufc" or k.shape[-1:] != (n // 2 + 1,):
+        raise ValidationError(f"kernel_fft must be the rfft of a length-{n} kernel ({n // 2 + 1} values), got {k.shape}")
     return np.fft.irfft(np.fft.rfft(x, axis=-1) * kernel_fft, n=n, axis=-1)
 
 
 def _check_n(n) -> int:
-    if not isinstance(n, (int, np.integer)) or n < 3:
+    if not isinstance(n, (int, np.integer)) or isinstance(n, (bool, np.bool_)) or n < 3:
         raise ValidationError(f"number of sites must be an int >= 3, got {n!r}")
-    return int(n)
+    return as_count(n, "number of sites", min=3, max=1_000_000, why="a field holds n (1-D) or n0 x n1 (2-D) sites")
 
 
 class Field1D:
@@ -182,11 +196,9 @@ class Field1D:
     def __init__(self, n: int = 360, params: FieldParams | None = None, *, dt: float = 1.0,
                  period: float = TWO_PI):
         self.n = _check_n(n)
-        self.params = params if params is not None else FieldParams()
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValidationError(f"dt must be a positive finite number, got {dt!r}")
-        self.dt = float(dt)
-        self.period = float(period)
+        self.params = FieldParams() if params is None else as_instance(params, FieldParams, "params")
+        self.dt = as_positive_float(dt, "dt")
+        self.period = as_positive_float(period, "period")
         self.kernel = lateral_kernel(self.n, self.params, self.period)
         self._kernel_fft = np.fft.rfft(self.kernel)
         self._rate = self.dt / self.params.tau
@@ -286,16 +298,23 @@ class Field2D:
     def __init__(self, shape=(360, 360), params: FieldParams | None = None, *, dt: float = 1.0,
                  period: float = TWO_PI, dtype=np.float32, method: str = "active", eps: float = 1e-6,
                  max_active: int = 96):
-        if len(shape) != 2:
+        if not isinstance(shape, (tuple, list)) or len(shape) != 2:
             raise ValidationError(f"shape must be (n0, n1), got {shape!r}")
         self.shape = (_check_n(shape[0]), _check_n(shape[1]))
-        self.params = params if params is not None else FieldParams()
-        if method not in ("active", "fft"):
+        if self.shape[0] * self.shape[1] > 10_000_000:
+            raise ValidationError(f"shape {self.shape} holds more than 1e7 sites (memory: several arrays of that size)")
+        self.params = FieldParams() if params is None else as_instance(params, FieldParams, "params")
+        if not isinstance(method, str) or method not in ("active", "fft"):
             raise ValidationError(f"method must be 'active' or 'fft', got {method!r}")
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValidationError(f"dt must be a positive finite number, got {dt!r}")
-        if not (0 < eps < 0.5):
-            raise ValidationError(f"eps must lie in (0, 0.5), got {eps!r}")
+        dt = as_positive_float(dt, "dt")
+        period = as_positive_float(period, "period")
+        eps = as_float(eps, "eps", low=0.0, high=0.5, low_open=True, high_open=True)
+        max_active = as_count(max_active, "max_active", min=0)
+        try:
+            if np.dtype(dtype).kind != "f":
+                raise TypeError
+        except TypeError:
+            raise ValidationError(f"dtype must be a float dtype (float32 or float64), got {dtype!r}") from None
         self.method = method
         self.dtype = np.dtype(dtype)
         self.dt = float(dt)
@@ -585,12 +604,8 @@ class MemoryTrace:
     def __init__(self, n: int = 360, *, tau: float = 1.0, build: float = 0.05, decay: float = 0.001,
                  dt: float = 1.0):
         self.n = _check_n(n)
-        for name, v in (("tau", tau), ("dt", dt)):
-            if not (np.isfinite(v) and v > 0):
-                raise ValidationError(f"{name} must be a positive finite number, got {v!r}")
-        for name, v in (("build", build), ("decay", decay)):
-            if not (np.isfinite(v) and v >= 0):
-                raise ValidationError(f"{name} must be a non-negative finite number, got {v!r}")
+        tau, dt = as_positive_float(tau, "tau"), as_positive_float(dt, "dt")
+        build, decay = as_float(build, "build", low=0.0), as_float(decay, "decay", low=0.0)
         if dt * max(build, decay) / tau > 1.0:
             raise ValidationError(f"dt * max(build, decay) / tau must be <= 1 for a stable Euler step, "
                                   f"got {dt * max(build, decay) / tau:g}")
@@ -625,6 +640,9 @@ def expand(field, n_other: int, axis: int = 0) -> np.ndarray:
     field = np.asarray(field)
     if field.ndim != 1:
         raise ValidationError(f"field must be 1-D, got shape {field.shape}")
+    n_other = as_count(n_other, "n_other", max=2**31 - 1, why="numpy's largest dimension")
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
+        raise ValidationError(f"axis must be 0 or 1, got {axis!r}")
     if axis == 0:
         return np.broadcast_to(field[:, None], (field.shape[0], n_other))
     if axis == 1:
@@ -645,8 +663,11 @@ def diagonal_sum(F) -> np.ndarray:
     Returns
     -------
     (n,) float
+        NaN in, NaN out: ``F`` is not scanned for NaN.
     """
     F = np.asarray(F)
+    if F.dtype.kind not in "biuf":
+        raise ValidationError(f"F must be a real array, got dtype {F.dtype}")
     if F.ndim != 2 or F.shape[0] != F.shape[1]:
         raise ValidationError(f"F must be a square 2-D array, got shape {F.shape}")
     n = F.shape[0]

@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._util import as_rng
+from .._validate import as_count, as_nonnegative_float, as_positive_float, as_probability
 from ..errors import ValidationError
 from .tracker import as_angles, as_odometry
 
@@ -88,11 +89,14 @@ class ParticleOrientationEstimator:
             raise ValidationError(f"n_particles must be a positive int, got {n_particles!r}")
         if not isinstance(n_bins, (int, np.integer)) or n_bins < 8:
             raise ValidationError(f"n_bins must be an int >= 8, got {n_bins!r}")
-        for name, v in (("drift_std", drift_std), ("alpha", alpha), ("power", power), ("contrast", contrast)):
-            if not (np.isfinite(v) and v > 0):
-                raise ValidationError(f"{name} must be a positive finite number, got {v!r}")
-        if not (0 <= forget < 1):
-            raise ValidationError(f"forget must lie in [0, 1), got {forget!r}")
+        n_particles = as_count(n_particles, "n_particles", max=1_000_000, why="memory: n_particles x n_bins floats")
+        n_bins = as_count(n_bins, "n_bins", min=8, max=100_000, why="memory: n_particles x n_bins floats")
+        if n_particles * n_bins > 100_000_000:
+            raise ValidationError(f"n_particles x n_bins = {n_particles * n_bins} exceeds 1e8 (memory: 800 MB)")
+        drift_std, alpha = as_positive_float(drift_std, "drift_std"), as_positive_float(alpha, "alpha")
+        power, contrast = as_positive_float(power, "power"), as_positive_float(contrast, "contrast")
+        forget = as_probability(forget, "forget", open_high=True)
+        scale_std = as_nonnegative_float(scale_std, "scale_std")
         self.n_particles, self.n_bins = int(n_particles), int(n_bins)
         self.drift_std, self.alpha, self.power, self.forget = float(drift_std), float(alpha), float(power), float(forget)
         self.contrast = float(contrast)

@@ -50,6 +50,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._validate import as_bool, as_count, as_float, as_instance
 from ..errors import ValidationError
 from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve,
                      periodic_distance, site_angles)
@@ -116,8 +117,12 @@ def population_code(angles, n_sites: int, width: float, gain: float, *, normaliz
     -------
     (n_sites,) float
     """
+    a = as_angles(angles, "angles", allow_empty=True)
+    n_sites = as_count(n_sites, "n_sites", min=3, max=1_000_000, why="one response per site")
+    width = as_float(width, "width (rad)", low=1e-6, high=1e3)  # width^2 must neither under- nor overflow
+    gain = as_float(gain, "gain")
+    normalize = as_bool(normalize, "normalize")
     phi = site_angles(n_sites)
-    a = np.asarray(angles, dtype=np.float64)
     if a.size == 0:
         return np.zeros(n_sites)
     if normalize:
@@ -221,9 +226,9 @@ class OrientationTracker:
     """
 
     def __init__(self, params: TrackerParams | None = None, *, correct: bool | None = None, **changes):
-        p = params if params is not None else TrackerParams()
+        p = TrackerParams() if params is None else as_instance(params, TrackerParams, "params")
         if correct is not None:
-            changes["correct"] = bool(correct)
+            changes["correct"] = as_bool(correct, "correct")
         if changes:
             unknown = set(changes) - set(TrackerParams.__dataclass_fields__)
             if unknown:
@@ -231,6 +236,15 @@ class OrientationTracker:
             p = p.with_(**changes)
         if not isinstance(p.n_sites, (int, np.integer)) or p.n_sites < 16:
             raise ValidationError(f"n_sites must be an int >= 16, got {p.n_sites!r}")
+        as_count(p.n_sites, "n_sites", min=16, max=3000, why="the comparison field holds n_sites^2 sites")
+        for f in TrackerParams.__dataclass_fields__:
+            v = getattr(p, f)
+            if f == "correct":
+                as_bool(v, "correct")
+            elif isinstance(getattr(TrackerParams, f, None), FieldParams):
+                as_instance(v, FieldParams, f)
+            elif f != "n_sites":
+                as_float(v, f)
         if not (np.isfinite(p.input_window) and p.input_window >= 0):
             raise ValidationError(f"input_window must be >= 0 samples (0: no window), got {p.input_window!r}")
         self.params = p

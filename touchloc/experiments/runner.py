@@ -5,10 +5,12 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import csv
+import io
 import os
 import threading
 from pathlib import Path
 
+from .._validate import as_bool, as_count, as_path
 from ..errors import ValidationError
 from .sweep import Sweep
 from .trial import RESULT_COLUMNS, run_trial
@@ -132,12 +134,19 @@ def read_results(path) -> list:
 
     A last line cut off by an interruption is ignored.
     """
-    p = Path(path)
+    p = as_path(path, "results file", must_exist=False)
     if not p.exists():
         return []
+    if not p.is_file():
+        raise ValidationError(f"results file must be a file, got {p}")
     rows = []
-    with open(p, newline="") as fh:
-        reader = csv.DictReader(fh)
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            text = fh.read()
+    except UnicodeDecodeError as exc:
+        raise ValidationError(f"{p}: not a results CSV (not UTF-8 text at byte {exc.start})") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    try:
         for r in reader:
             if None in r or any(v is None for v in r.values()):
                 continue  # a partial line
@@ -145,6 +154,10 @@ def read_results(path) -> list:
                 rows.append({c: _decode(c, r[c]) for c in reader.fieldnames})
             except (ValueError, KeyError):
                 continue
+    except csv.Error as exc:
+        raise ValidationError(f"{p}: not a results CSV: {exc}") from None
+    if rows and "trial_id" not in rows[0]:
+        raise ValidationError(f"{p}: not a results CSV: no trial_id column (columns {list(rows[0])[:8]})")
     rows.sort(key=lambda r: r["trial_id"])
     return rows
 
@@ -192,8 +205,22 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
     list of dict
         Every row of ``out`` (old and new), sorted by trial_id.
     """
-    trials = sweep.trials() if isinstance(sweep, Sweep) else list(sweep)
-    out = Path(out)
+    if isinstance(sweep, Sweep):
+        trials = sweep.trials()
+    elif isinstance(sweep, (list, tuple)) and all(isinstance(t, dict) for t in sweep):
+        trials = list(sweep)
+    else:
+        raise ValidationError(f"sweep must be a Sweep or a list of trial dicts, got {type(sweep).__name__}")
+    out = as_path(out, "out", must_exist=False)
+    if not isinstance(executor_spec, str):
+        raise ValidationError(f"executor_spec must be a str (see executor()), got {type(executor_spec).__name__}")
+    if workers is not None:
+        workers = as_count(workers, "workers", max=4096)
+    if progress is not None:
+        progress = as_bool(progress, "progress")
+    resume, parquet = as_bool(resume, "resume"), as_bool(parquet, "parquet")
+    if executor_obj is not None and not callable(getattr(executor_obj, "submit", None)):
+        raise ValidationError(f"executor_obj must be a concurrent.futures.Executor, got {type(executor_obj).__name__}")
     out.parent.mkdir(parents=True, exist_ok=True)
     if not resume and out.exists():
         out.unlink()
@@ -239,10 +266,27 @@ def _truncate_partial_line(path: Path) -> None:
         path.write_bytes(data[: data.rfind(b"\n") + 1])
 
 
+_SUMMARY_COLUMNS = ("success", "add_s", "time", "touches", "cov50", "cov90", "cov95")
+
+
 def summarize(rows, by=("mode", "estimator", "planner", "mesh", "contacts")) -> list:
     """Per group: trials, success rate, median ADD-S, median time, median touches, coverage."""
     import numpy as np
 
+    if isinstance(rows, (str, bytes, dict)) or not hasattr(rows, "__iter__"):
+        raise ValidationError(f"rows must be a list of result dicts (read_results), got {type(rows).__name__}")
+    if isinstance(by, str) or not hasattr(by, "__iter__") or not all(isinstance(k, str) for k in by):
+        raise ValidationError(f"by must be a list of column names, got {by!r}"[:160])
+    rows, by = list(rows), tuple(by)
+    for i, r in enumerate(rows):
+        if not isinstance(r, dict):
+            raise ValidationError(f"rows[{i}] must be a result dict, got {type(r).__name__}")
+        missing = [k for k in (*by, *_SUMMARY_COLUMNS) if k not in r]
+        if missing:
+            raise ValidationError(f"rows[{i}] lacks columns {missing}")
+        for c in _SUMMARY_COLUMNS:
+            if isinstance(r[c], (str, bytes)) or not isinstance(r[c], (int, float, np.number)):
+                raise ValidationError(f"rows[{i}][{c!r}] must be a number, got {type(r[c]).__name__}")
     groups: dict = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in by), []).append(r)

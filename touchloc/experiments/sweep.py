@@ -9,6 +9,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .._validate import as_count, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "trial_id"]
@@ -22,13 +23,20 @@ REGIONS = ("full", "planar")
 
 def trial_id(params: dict) -> str:
     """A stable 16-hex-digit key of a trial's parameters (for resuming)."""
-    blob = json.dumps(params, sort_keys=True, separators=(",", ":"))
+    if not isinstance(params, dict):
+        raise ValidationError(f"params must be a dict of plain values, got {type(params).__name__}")
+    try:
+        blob = json.dumps(params, sort_keys=True, separators=(",", ":"))
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"params must hold plain JSON values (str, numbers, lists, dicts): {exc}") from None
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
 def _as_list(x, name):
-    if isinstance(x, (str, int, float, dict)):
+    if isinstance(x, (str, int, float, dict, os.PathLike)):
         x = [x]
+    if x is None or isinstance(x, (bool, bytes, complex)) or not hasattr(x, "__iter__"):
+        raise ValidationError(f"sweep {name} must be a list (or one value), got {type(x).__name__} {x!r}"[:160])
     x = list(x)
     if not x:
         raise ValidationError(f"sweep {name} must not be empty")
@@ -86,18 +94,25 @@ class Sweep:
     success: float = 0.005
 
     def __post_init__(self):
-        self.meshes = [os.fspath(m) for m in _as_list(self.meshes, "meshes")]
+        meshes = _as_list(self.meshes, "meshes")
+        for m in meshes:
+            if not isinstance(m, (str, os.PathLike)):
+                raise ValidationError(f"sweep meshes must be bundled names or paths, got {type(m).__name__} {m!r}"[:160])
+        self.meshes = [os.fspath(m) for m in meshes]
         ests = []
         for e in _as_list(self.estimators, "estimators"):
+            if not isinstance(e, (str, dict)):
+                raise ValidationError(f"sweep estimators must be names or dicts, got {type(e).__name__}")
             e = {"name": e} if isinstance(e, str) else dict(e)
             if e.get("name") not in ESTIMATORS:
                 raise ValidationError(f"estimator name must be one of {ESTIMATORS}, got {e.get('name')!r}")
             ests.append(e)
         self.estimators = ests
-        self.contacts = [int(k) for k in _as_list(self.contacts, "contacts")]
+        self.contacts = [as_count(k, "sweep contacts", max=10_000, why="contacts or touches per trial")
+                         for k in _as_list(self.contacts, "contacts")]
         if any(k < 1 for k in self.contacts):
             raise ValidationError(f"contact counts must be >= 1, got {self.contacts}")
-        self.noise = [float(s) for s in _as_list(self.noise, "noise")]
+        self.noise = [as_nonnegative_float(s, "sweep noise (m)") for s in _as_list(self.noise, "noise")]
         if any(s < 0 for s in self.noise):
             raise ValidationError(f"noise levels must be >= 0 m, got {self.noise}")
         self.modes = [str(m) for m in _as_list(self.modes, "modes")]
@@ -107,10 +122,17 @@ class Sweep:
         self.planners = [str(p) for p in _as_list(self.planners, "planners")]
         if set(self.planners) - set(PLANNERS):
             raise ValidationError(f"planners must be among {PLANNERS}, got {self.planners}")
-        self.seeds = list(range(self.seeds)) if isinstance(self.seeds, int) else [int(s) for s in self.seeds]
+        if isinstance(self.seeds, int) and not isinstance(self.seeds, bool):
+            self.seeds = list(range(as_count(self.seeds, "sweep seeds", min=0, max=10_000_000)))
+        else:
+            self.seeds = [as_count(s, "sweep seed", min=0) for s in _as_list(self.seeds, "seeds")]
         if not self.seeds:
             raise ValidationError("sweep seeds must not be empty")
-        if self.region not in REGIONS:
+        self.sigma_pos = as_positive_float(self.sigma_pos, "sigma_pos (m)")
+        self.sigma_nor = as_positive_float(self.sigma_nor, "sigma_nor")
+        self.normal_noise = as_nonnegative_float(self.normal_noise, "normal_noise (rad)")
+        self.success = as_positive_float(self.success, "success (m)")
+        if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValidationError(f"region must be one of {REGIONS}, got {self.region!r}")
 
     # -- construction ------------------------------------------------------------------

@@ -14,6 +14,7 @@ import zlib
 
 import numpy as np
 
+from .._validate import as_count, as_mapping, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["run_trial", "RESULT_COLUMNS", "clear_cache", "cache_info"]
@@ -156,6 +157,36 @@ def _active(p, obj, data_rng, est_rng):
     return true, res.belief, res.steps[-1].map_pose, dt, res.touches
 
 
+_TRIAL_KEYS = ("mode", "mesh", "estimator", "planner", "options", "contacts", "noise", "seed", "region",
+               "sigma_pos", "sigma_nor", "normal_noise", "success_threshold")
+
+
+def _check_params(params) -> dict:
+    """A trial's parameters as :meth:`Sweep.trials` makes them, checked."""
+    p = as_mapping(params, "params", expected="a dict of trial parameters (an element of Sweep.trials())")
+    missing = [k for k in _TRIAL_KEYS if k not in p]
+    if missing:
+        raise ValidationError(f"trial params lack {missing}; pass an element of Sweep.trials()")
+    for k in ("mode", "mesh", "estimator", "planner", "options", "region"):
+        if not isinstance(p[k], str):
+            raise ValidationError(f"trial params[{k!r}] must be a str, got {type(p[k]).__name__}")
+    if p["mode"] not in ("passive", "active"):
+        raise ValidationError(f"trial mode must be 'passive' or 'active', got {p['mode']!r}")
+    p["contacts"] = as_count(p["contacts"], "trial contacts", max=10_000)
+    p["seed"] = as_count(p["seed"], "trial seed", min=0)
+    p["noise"] = as_nonnegative_float(p["noise"], "trial noise (m)")
+    p["normal_noise"] = as_nonnegative_float(p["normal_noise"], "trial normal_noise (rad)")
+    for k in ("sigma_pos", "sigma_nor", "success_threshold"):
+        p[k] = as_positive_float(p[k], f"trial {k}")
+    try:
+        opts = json.loads(p["options"])
+    except ValueError as exc:
+        raise ValidationError(f"trial options must be a JSON object: {exc}") from None
+    if not isinstance(opts, dict):
+        raise ValidationError(f"trial options must be a JSON object, got {p['options']!r}")
+    return p
+
+
 def run_trial(params: dict) -> dict:
     """Run one trial and return its row: the parameters and the measured columns.
 
@@ -176,7 +207,7 @@ def run_trial(params: dict) -> dict:
     """
     from ..belief import add_s, credible_level, symmetric_pose_error
 
-    p = dict(params)
+    p = _check_params(params)
     obj = _object(p["mesh"])
     data_rng, est_rng = _streams(p)
     with warnings.catch_warnings():

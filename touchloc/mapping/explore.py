@@ -23,6 +23,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from .._util import as_rng, progress
+from .._validate import as_bool, as_callable, as_nonnegative_float
 from ..errors import ValidationError
 from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
@@ -35,6 +36,7 @@ _MAX_TOUCHES = 100_000
 
 
 def _reach(lo, hi, margin):
+    margin = as_nonnegative_float(margin, "margin (m)")
     c = 0.5 * (lo + hi)
     return c, 0.5 * float(np.linalg.norm(hi - lo)) + margin
 
@@ -84,6 +86,7 @@ def hand_pool(bounds, n: int = 20, *, fingers: int = 3, rng=None, margin: float 
     fingers = _as_count(fingers, "fingers", 16)
     rng = as_rng(rng)
     c0, R = _reach(lo, hi, margin)
+    planar = as_bool(planar, "planar")
     out = []
     for i in range(n):
         c = c0 + rng.uniform(-0.25, 0.25, 3) * (hi - lo)
@@ -160,7 +163,7 @@ def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = 
     if not touches or not all(isinstance(t, GuardedTouch) for t in touches):
         raise ValidationError("touches must be a non-empty list of GuardedTouch")
     samples = _as_count(samples, "samples", 10_000)
-    if score not in ("variance", "entropy"):
+    if not isinstance(score, str) or score not in ("variance", "entropy"):
         raise ValidationError(f"score must be 'variance' or 'entropy', got {score!r}")
     lo, hi = smap.lo, smap.hi
     O = np.array([t.origin for t in touches])
@@ -255,10 +258,12 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     """
     if not callable(getattr(world, "execute", None)):
         raise ValidationError("world must have execute(action) -> list of TouchResult")
-    if planner not in PLANNERS:
+    if not isinstance(planner, str) or planner not in PLANNERS:
         raise ValidationError(f"planner must be one of {PLANNERS}, got {planner!r}")
     n_touches = _as_count(n_touches, "n_touches")
     n_candidates = _as_count(n_candidates, "n_candidates", 10_000)
+    callback = as_callable(callback, "callback", allow_none=True)
+    progress_bar = None if progress_bar is None else as_bool(progress_bar, "progress_bar")
     rng = as_rng(rng)
     if slam is not None:
         from .slam import TactileSLAM, transform_results

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._util import as_rng
 from ..errors import ValidationError
 from ..models import MeshObject
 
@@ -34,7 +35,7 @@ def surface_distances(a: MeshObject, b: MeshObject, *, n: int = 10000, rng=0):
     """
     a, b = _as_mesh(a, "a"), _as_mesh(b, "b")
     n = _count(n)
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     pa, _, _ = a.sample_surface(n, rng=rng)
     pb, _, _ = b.sample_surface(n, rng=rng)
     return b.closest_points(pa)[2], a.closest_points(pb)[2]

@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from .._util import as_points
+from .._validate import as_bool
 from ..errors import MappingError, ValidationError
 from .gpis import GPIS
 from .occupancy import OccupancyGrid
@@ -114,7 +115,7 @@ class ShapeMap:
                  lengthscale: float | None = None, signal_std: float | None = None, prior="sphere",
                  free_space: bool = True, resolution: int = 64):
         self.lo, self.hi = as_bounds(bounds)
-        if method not in METHODS:
+        if not isinstance(method, str) or method not in METHODS:
             raise ValidationError(f"method must be one of {METHODS}, got {method!r}")
         for name, v in (("sigma_pos", sigma_pos), ("sigma_nor", sigma_nor)):
             if not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
@@ -124,10 +125,10 @@ class ShapeMap:
         ext = float(np.max(self.hi - self.lo))
         self.lengthscale = _positive("lengthscale", lengthscale, ext / 8.0)
         self.signal_std = _positive("signal_std", signal_std, 0.4 * self.lengthscale)
-        if not (callable(prior) or prior in ("sphere", "superquadric")):
+        if not (callable(prior) or (isinstance(prior, str) and prior in ("sphere", "superquadric"))):
             raise ValidationError(f"prior must be 'sphere', 'superquadric' or a callable, got {prior!r}")
         self.prior = prior
-        self.free_space = bool(free_space)
+        self.free_space = as_bool(free_space, "free_space")
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or not 8 <= resolution <= 512:
             raise ValidationError(f"resolution must be an integer in [8, 512], got {resolution!r}")
         self.resolution = int(resolution)

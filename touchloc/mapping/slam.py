@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, logsumexp
 
 from .._util import as_rng
-from .._validate import as_float, as_pose
+from .._validate import as_bool, as_float, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
@@ -100,7 +100,7 @@ class TactileSLAM:
         self.odometry_noise = _pair(odometry_noise, "odometry_noise")
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or not 10 <= n_particles <= 100_000:
             raise ValidationError(f"n_particles must be an integer in [10, 100000], got {n_particles!r}")
-        self.planar = bool(planar)
+        self.planar = as_bool(planar, "planar")
         self.rng = as_rng(rng)
         T0 = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose")
         self.map = ShapeMap(self.bounds, **map_kwargs)
@@ -278,7 +278,7 @@ class MovingWorld:
         self.obj = obj
         self.true_pose = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose").copy()
         self.push = _pair(push, "push")
-        self.planar, self.inhand = bool(planar), bool(inhand)
+        self.planar, self.inhand = as_bool(planar, "planar"), as_bool(inhand, "inhand")
         self.step = as_float(step, "step", low=-np.pi, high=np.pi)
         try:
             a = np.asarray(axis, dtype=float).reshape(3)

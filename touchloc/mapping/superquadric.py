@@ -163,6 +163,10 @@ def fit_superquadric(contacts, *, sigma_pos: float = 0.001, sigma_nor: float = 0
     if np.linalg.det(V) < 0:
         V[:, 0] *= -1
     ext = np.abs((P - ctr) @ V).max(axis=0)
+    if bounds is not None:
+        from .shape_map import as_bounds
+
+        bounds = as_bounds(bounds)
     cap = np.inf if bounds is None else float(np.max(np.asarray(bounds[1]) - np.asarray(bounds[0])))
     ext = np.clip(ext, 1e-3, cap)
     rv0 = Rotation.from_matrix(V).as_rotvec()

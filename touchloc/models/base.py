@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._util import as_poses
+from .._validate import as_sequence
 from ..errors import ValidationError
 
 __all__ = ["MeasurementModel", "SumModel", "check_temperature"]
@@ -52,7 +53,7 @@ class SumModel(MeasurementModel):
 
     def __init__(self, models):
         flat = []
-        for m in models:
+        for m in as_sequence(models, "models", expected="a list of measurement models"):
             if not isinstance(m, MeasurementModel):
                 raise ValidationError(f"SumModel takes measurement models, got {type(m).__name__}")
             flat.extend(m.models if isinstance(m, SumModel) else [m])

@@ -7,6 +7,7 @@ from typing import Iterable, Optional
 import numpy as np
 
 from .._util import as_points
+from .._validate import as_path, as_pose
 from ..errors import ValidationError
 
 __all__ = ["Contacts"]
@@ -102,14 +103,10 @@ class Contacts:
         Parameters
         ----------
         pose : (4, 4) float
-            Rigid transform (rotation part must be orthonormal).
+            Rigid transform: orthonormal rotation with determinant +1.
         """
-        T = np.asarray(pose, dtype=np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValidationError(f"pose must be a finite (4, 4) matrix, got {T.shape}")
+        T = as_pose(pose, "pose")  # a proper rigid transform: reflections are refused
         R, t = T[:3, :3], T[:3, 3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
-            raise ValidationError("pose rotation must be orthonormal")
         P = self._points @ R.T + t
         N = None if self._normals is None else self._normals @ R.T
         return Contacts(P, N)
@@ -165,12 +162,9 @@ class Contacts:
             non-numeric or non-finite cells, a wrong column count or unknown header names;
             the message names the file and the line.
         """
-        import os
-
-        if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
-            raise ValidationError(f"from_csv needs a file path (str or os.PathLike), got {type(path).__name__}")
+        path = as_path(path, "contacts file", must_exist=False)  # never a file descriptor
         try:
-            with open(os.fspath(path), "r", encoding="utf-8-sig", newline="") as fh:
+            with open(path, "r", encoding="utf-8-sig", newline="") as fh:
                 text = fh.read()
         except FileNotFoundError:
             raise ValidationError(f"{path}: no such contacts file") from None

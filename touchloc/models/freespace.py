@@ -18,7 +18,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from .._util import as_points, as_poses
-from .._validate import as_float, as_positive_float
+from .._validate import as_float, as_float_array, as_instance, as_positive_float
 from ..errors import ValidationError
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
@@ -190,6 +190,14 @@ def _ray_offsets(direction, radius):
     return offs, np.linalg.norm(offs, axis=1)
 
 
+def _per_ray(x, name: str, n: int) -> np.ndarray:
+    """One value or one per ray, as an (n,) float array (finiteness is checked by the caller)."""
+    a = as_float_array(x, name, finite=False, expected=f"a number or {n} numbers, one per ray")
+    if a.size not in (1, n):
+        raise ValidationError(f"{name} must be a number or {n} numbers, one per ray, got shape {a.shape}")
+    return np.broadcast_to(a.reshape(-1), (n,)).copy()
+
+
 def ray_stops(obj: MeshObject, poses, origins, directions, probe_radius=0.0) -> np.ndarray:
     """How far each probe travels before it meets the object at each pose.
 
@@ -212,11 +220,14 @@ def ray_stops(obj: MeshObject, poses, origins, directions, probe_radius=0.0) -> 
     (P, F) float
         Stop distance along each direction (m); inf where the probe never meets the object.
     """
+    obj = as_instance(obj, MeshObject, "obj")
     T = as_poses(poses)
     O = as_points(origins, "origins")
     D = as_points(directions, "directions")
     F = len(O)
-    rad = np.broadcast_to(np.asarray(probe_radius, dtype=float), (F,))
+    rad = _per_ray(probe_radius, "probe_radius (m)", F)
+    if not (np.all(np.isfinite(rad)) and np.all(rad >= 0) and np.all(rad <= 1.0)):
+        raise ValidationError("probe_radius must be finite and in [0, 1] m (a fingertip)")
     ray_o, ray_d, ray_f, ray_back = [O], [D], [np.arange(F)], [rad.copy()]
     for j in np.flatnonzero(rad > 0):
         offs, r = _ray_offsets(D[j], rad[j])
@@ -282,17 +293,16 @@ class RayStopModel(FreeSpaceBase):
         J = len(O)
         if D.shape != O.shape:
             raise ValidationError(f"origins {O.shape} and directions {D.shape} must match")
-        trav = np.broadcast_to(np.asarray(travel, dtype=float), (J,)).copy()
-        maxt = np.broadcast_to(np.asarray(max_travel, dtype=float), (J,)).copy()
-        rad = np.broadcast_to(np.asarray(probe_radius, dtype=float), (J,)).copy()
+        trav = _per_ray(travel, "travel (m)", J)
+        maxt = _per_ray(max_travel, "max_travel (m)", J)
+        rad = _per_ray(probe_radius, "probe_radius (m)", J)
         if not (np.all(np.isfinite(trav)) and np.all(trav >= 0) and np.all(np.isfinite(maxt)) and np.all(maxt > 0)):
             raise ValidationError("travel must be finite and >= 0, max_travel finite and > 0 (m)")
-        if not (np.all(np.isfinite(rad)) and np.all(rad >= 0)):
-            raise ValidationError("probe_radius must be finite and >= 0 (m)")
-        if not (np.isfinite(sigma) and sigma > 0):
-            raise ValidationError(f"sigma must be > 0 (m), got {sigma}")
-        if not (0 <= eps < 1):
-            raise ValidationError(f"eps must be in [0, 1), got {eps}")
+        if not (np.all(np.isfinite(rad)) and np.all(rad >= 0) and np.all(rad <= 1.0)):
+            raise ValidationError("probe_radius must be finite and in [0, 1] m (a fingertip)")
+        sigma = as_positive_float(sigma, "sigma (m)")
+        eps = as_float(eps, "eps", low=0.0, high=1.0, high_open=True)
+        margin = as_float(margin, "margin", low=0.0)
         self.obj, self.origins, self.directions = obj, O, D
         self.travel, self.max_travel, self.probe_radius = trav, maxt, rad
         self.sigma, self.eps, self.margin = float(sigma), float(eps), float(margin)

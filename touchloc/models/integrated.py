@@ -6,6 +6,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._util import as_poses
+from .._validate import as_callable, as_count, as_positive_float
 from ..errors import ValidationError
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
@@ -44,10 +45,12 @@ class IntegratedProximityModel(MeasurementModel):
                  n_samples: int = 2000, surface_prior=None, rng=None):
         if not isinstance(obj, MeshObject):
             raise ValidationError(f"obj must be a MeshObject, got {type(obj).__name__}")
-        if not (np.isfinite(sigma_pos) and sigma_pos > 0):
-            raise ValidationError(f"sigma_pos must be > 0, got {sigma_pos}")
-        if sigma_nor is not None and not (np.isfinite(sigma_nor) and sigma_nor > 0):
-            raise ValidationError(f"sigma_nor must be > 0 or None, got {sigma_nor}")
+        sigma_pos = as_positive_float(sigma_pos, "sigma_pos (m)")
+        if sigma_nor is not None:
+            sigma_nor = as_positive_float(sigma_nor, "sigma_nor")
+        n_samples = as_count(n_samples, "n_samples", max=1_000_000,
+                             why="a likelihood pass holds 256 x contacts x n_samples distances")
+        surface_prior = as_callable(surface_prior, "surface_prior", allow_none=True)
         self.obj = obj
         self.sigma_pos = float(sigma_pos)
         self.sigma_nor = None if sigma_nor is None else float(sigma_nor)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
 import warnings
-from pathlib import Path
 
 import numpy as np
 import trimesh
 
 from .._util import as_points, as_rng
+from .._validate import as_bool, as_name, as_path, as_positive_float
 from ..errors import MeshError, ValidationError
 
 __all__ = ["MeshObject", "MeshRepairWarning", "MeshUnitsWarning"]
@@ -52,6 +51,8 @@ class MeshObject:
     def __init__(self, mesh, *, name: str | None = None, check_units: bool = True):
         if not isinstance(mesh, trimesh.Trimesh):
             raise MeshError(f"MeshObject needs a trimesh.Trimesh, got {type(mesh).__name__}")
+        name = as_name(name, "name")
+        check_units = as_bool(check_units, "check_units")
         self.name = name or "mesh"
         self.mesh = _repair(mesh, self.name)
         self.repairs = self.mesh.metadata.pop("touchloc_repairs", [])
@@ -80,11 +81,13 @@ class MeshObject:
         scale : float
             Factor applied to the vertices (e.g. 0.001 for a file in millimetres).
         """
-        path = Path(os.fspath(path))
+        path = as_path(path, "mesh file", must_exist=False)
         if not path.exists():
             raise MeshError(f"mesh file not found: {path}")
-        if not (np.isfinite(scale) and scale > 0):
-            raise ValidationError(f"scale must be a positive finite number, got {scale}")
+        if not path.is_file():
+            raise MeshError(f"mesh file must be a regular file, got {path}" + (" (a directory)" if path.is_dir() else ""))
+        scale = as_positive_float(scale, "scale")
+        name = as_name(name, "name")
         try:
             loaded = trimesh.load(path, force="mesh", process=False)
         except Exception as exc:  # trimesh raises many types for unreadable files

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_float_array, as_nonnegative_float, as_positive_float, as_sequence
 from ..errors import ValidationError
 
 __all__ = ["GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "fingers_of", "as_cost"]
@@ -46,8 +47,6 @@ class GuardedTouch:
     name: str = field(default="", compare=False)
 
     def __post_init__(self):
-        from .._validate import as_nonnegative_float, as_positive_float
-
         o = _vec3(self.origin)
         d = _vec3(self.direction)
         if o.shape != (3,) or not np.all(np.isfinite(o)):
@@ -91,7 +90,9 @@ class HandTouch:
     name: str = field(default="", compare=False)
 
     def __post_init__(self):
-        t = tuple(self.touches)
+        t = tuple(as_sequence(self.touches, "HandTouch.touches", expected="a list of GuardedTouch"))
+        if not isinstance(self.name, str):
+            raise ValidationError(f"HandTouch.name must be a str, got {type(self.name).__name__}")
         if not t or not all(isinstance(x, GuardedTouch) for x in t):
             raise ValidationError("HandTouch needs one or more GuardedTouch")
         object.__setattr__(self, "touches", t)
@@ -173,9 +174,7 @@ class TravelDistance(ActionCost):
     """Total distance moved by the fingers (m), plus an optional fixed ``overhead`` (m)."""
 
     def __init__(self, overhead: float = 0.0):
-        if not (np.isfinite(overhead) and overhead >= 0):
-            raise ValidationError(f"overhead must be >= 0 (m), got {overhead}")
-        self.overhead = float(overhead)
+        self.overhead = as_nonnegative_float(overhead, "overhead (m)")
 
     def __call__(self, action, travel) -> np.ndarray:
         return self.overhead + np.sum(np.asarray(travel, dtype=float), axis=-1)
@@ -194,15 +193,11 @@ class TravelTime(ActionCost):
 
     def __init__(self, speed: float = 0.05, overhead: float = 1.0, *, return_fraction: float = 1.0,
                  home=None, approach_speed: float = 0.25):
-        for name, v in (("speed", speed), ("approach_speed", approach_speed)):
-            if not (np.isfinite(v) and v > 0):
-                raise ValidationError(f"{name} must be > 0 (m/s), got {v}")
-        if not (np.isfinite(overhead) and overhead >= 0):
-            raise ValidationError(f"overhead must be >= 0 (s), got {overhead}")
-        self.speed, self.overhead = float(speed), float(overhead)
-        self.return_fraction = float(return_fraction)
-        self.home = None if home is None else np.asarray(home, dtype=float).reshape(3)
-        self.approach_speed = float(approach_speed)
+        self.speed = as_positive_float(speed, "speed (m/s)")
+        self.overhead = as_nonnegative_float(overhead, "overhead (s)")
+        self.return_fraction = as_nonnegative_float(return_fraction, "return_fraction")
+        self.home = None if home is None else as_float_array(home, "home (m)", shape=(3,))
+        self.approach_speed = as_positive_float(approach_speed, "approach_speed (m/s)")
 
     def __call__(self, action, travel) -> np.ndarray:
         t = np.asarray(travel, dtype=float)

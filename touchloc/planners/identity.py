@@ -8,6 +8,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._util import as_rng
+from .._validate import as_count, as_mapping, as_nonnegative_float, as_positive_float, as_probability
 from ..errors import PlanningError, ValidationError
 from .actions import GuardedTouch, as_cost
 from .lookahead import Plan
@@ -46,10 +47,14 @@ class IdentityPlanner:
 
     def __init__(self, objects, *, sigma_travel: float = 0.003, eps: float = 0.01, n_samples: int = 64,
                  max_particles: int = 200, beta: float = 0.0, cost=None):
-        if not objects:
-            raise ValidationError("objects must map names to MeshObjects")
-        if not sigma_travel > 0 or not 0 < eps < 1:
-            raise ValidationError("sigma_travel must be > 0 and eps in (0, 1)")
+        from ..models import MeshObject
+
+        objects = as_mapping(objects, "objects", of=MeshObject, min_len=1, expected="a dict name -> MeshObject")
+        sigma_travel = as_positive_float(sigma_travel, "sigma_travel (m)")
+        eps = as_probability(eps, "eps", open_low=True, open_high=True)
+        n_samples = as_count(n_samples, "n_samples", max=100_000, why="each sample is one simulated outcome per candidate")
+        max_particles = as_count(max_particles, "max_particles", max=1_000_000, why="one simulation per particle")
+        beta = as_nonnegative_float(beta, "beta")
         self.objects = dict(objects)
         self.sigma_travel, self.eps = float(sigma_travel), float(eps)
         self.n_samples, self.max_particles = int(n_samples), int(max_particles)

@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
+from .._validate import (as_bool, as_count, as_nonnegative_float, as_positive_float,
+                         as_probability)
 from ..errors import BeliefDegenerateError, PlanningError, ValidationError
 from ..models import MeshObject
 from .actions import as_cost
@@ -217,6 +219,9 @@ def _one_step(planner, ctx: _Context, w: np.ndarray, cand_idx: np.ndarray, K: in
     return W, post, value, cost
 
 
+_WHY_OBS = "each one is a simulated belief update per candidate"
+
+
 class OneStepPlanner:
     """Pick the candidate with the highest expected utility after one touch (eq. 42.15).
 
@@ -264,12 +269,16 @@ class OneStepPlanner:
         if not isinstance(obj, MeshObject):
             raise ValidationError(f"model must be a measurement model with a MeshObject (.obj) or a MeshObject, "
                                   f"got {type(model).__name__}")
-        if not (np.isfinite(beta) and beta >= 0):
-            raise ValidationError(f"beta must be >= 0, got {beta}")
-        if int(n_observations) < 1 or int(n_representatives) < 1 or int(max_particles) < 2:
-            raise ValidationError("n_observations and n_representatives must be >= 1, max_particles >= 2")
-        if not 0 < eps < 1:
-            raise ValidationError(f"eps must be in (0, 1), got {eps}")
+        beta = as_nonnegative_float(beta, "beta")
+        n_observations = as_count(n_observations, "n_observations", max=1000, why=_WHY_OBS)
+        n_representatives = as_count(n_representatives, "n_representatives", max=100_000, why=_WHY_OBS)
+        max_particles = as_count(max_particles, "max_particles", min=2, max=1_000_000,
+                                 why="planning simulates every candidate for every particle")
+        eps = as_probability(eps, "eps", open_low=True, open_high=True)
+        if sigma_travel is not None:
+            sigma_travel = as_positive_float(sigma_travel, "sigma_travel (m)")
+        sigma_normal = as_positive_float(sigma_normal, "sigma_normal")
+        max_collision = as_probability(max_collision, "max_collision")
         self.model, self.obj = model, obj
         self.utility: Utility = as_utility(utility)
         self.beta, self.cost = float(beta), as_cost(cost)
@@ -366,11 +375,11 @@ class TwoStepPlanner(OneStepPlanner):
     def __init__(self, model, *, branch: int | None = 4, n_observations: int = 6, n_observations_second: int = 3,
                  progress: bool = False, **kwargs):
         super().__init__(model, n_observations=n_observations, **kwargs)
-        if int(n_observations_second) < 1:
-            raise ValidationError(f"n_observations_second must be >= 1, got {n_observations_second}")
+        n_observations_second = as_count(n_observations_second, "n_observations_second", max=1000, why=_WHY_OBS)
         self.n_observations_second = int(n_observations_second)
-        if branch is not None and int(branch) < 1:
-            raise ValidationError(f"branch must be >= 1 or None, got {branch}")
+        if branch is not None:
+            branch = as_count(branch, "branch", max=100_000, why="each branch plans a second step for every outcome")
+        progress = as_bool(progress, "progress")
         self.branch = None if branch is None else int(branch)
         self.progress = progress
 

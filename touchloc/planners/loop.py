@@ -8,7 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
-from .._validate import as_positive_float, as_probability
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_callable, as_count, as_instance,
+                         as_nonnegative_float, as_pose, as_positive_float, as_probability, as_sequence)
 from ..belief import ParticleBelief, SMCFilter
 from ..errors import ValidationError
 from .actions import TouchResult
@@ -33,9 +34,12 @@ class SimulatedWorld:
     """
 
     def __init__(self, obj, true_pose, *, noise_pos: float = 0.001, noise_nor: float = 0.05, rng=None):
-        self.obj = obj
-        self.true_pose = np.asarray(true_pose, dtype=float).reshape(4, 4)
-        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
+        from ..models import MeshObject
+
+        self.obj = as_instance(obj, MeshObject, "obj")
+        self.true_pose = as_pose(true_pose, "true_pose")
+        self.noise_pos = as_nonnegative_float(noise_pos, "noise_pos (m)")
+        self.noise_nor = as_nonnegative_float(noise_nor, "noise_nor")
         self.rng = as_rng(rng)
 
     def execute(self, action) -> list:
@@ -164,12 +168,26 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     """
     if not hasattr(world, "execute"):
         raise ValidationError("world must have execute(action) -> list of TouchResult")
-    if int(max_touches) < 0:
-        raise ValidationError(f"max_touches must be >= 0, got {max_touches}")
+    from ..belief import PoseRegion
+    from ..belief._common import check_model
+
+    model = check_model(model)
+    region = as_instance(region, PoseRegion, "region")
+    if not callable(getattr(planner, "plan", None)):
+        raise ValidationError(f"planner must have plan(belief, candidates, rng=...), got {type(planner).__name__}")
+    if not callable(candidates):
+        candidates = as_sequence(candidates, "candidates", min_len=1, expected="a list of actions or a callable")
+    n_particles = as_count(n_particles, "n_particles", min=10, max=MAX_PARTICLES, why=WHY_PARTICLES)
+    max_touches = as_count(max_touches, "max_touches", min=0, max=100_000, why="each touch is one plan and update")
+    min_touches = as_count(min_touches, "min_touches", min=0)
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
+    keep_plans = as_bool(keep_plans, "keep_plans")
+    callback = as_callable(callback, "callback", allow_none=True)
     if confidence is None:
         stop_error = 0.005 if stop_error is None else as_positive_float(stop_error, "stop_error")
         stop_probability = as_probability(stop_probability, "stop_probability", open_low=True)
-        if stop_metric not in ("add_s", "pose"):
+        if not isinstance(stop_metric, str) or stop_metric not in ("add_s", "pose"):
             raise ValidationError(f"stop_metric must be 'add_s' or 'pose', got {stop_metric!r}")
     else:
         confidence = as_positive_float(confidence, "confidence")
@@ -177,7 +195,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     obj = model.obj
     if updater is None:
         updater = SMCFilter(model, n_particles, rng=rng)
-    if not hasattr(updater, "update"):
+    if not callable(getattr(updater, "update", None)) or "belief" not in dir(updater):
         raise ValidationError(f"updater must have update(results) and .belief, got {type(updater).__name__}")
     if _belief_of(updater) is None and hasattr(updater, "initialize"):
         updater.initialize(region)

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import as_count, as_pose, as_positive_float
+from .._validate import as_count, as_instance, as_pose, as_positive_float
+from ..belief import ParticleBelief
 from ..belief.metrics import add_s
 from ..errors import ValidationError
 
@@ -16,6 +17,7 @@ def best_pose(belief) -> np.ndarray:
     """(4, 4) the belief's point estimate: ``belief.info["map_pose"]`` if an estimator
     left one there (e.g. the particle of highest posterior density of an equally
     weighted sample), else :meth:`ParticleBelief.map_pose`."""
+    belief = as_instance(belief, ParticleBelief, "belief")
     T = belief.info.get("map_pose") if getattr(belief, "info", None) else None
     return np.array(T, dtype=float) if T is not None else belief.map_pose()
 
@@ -27,12 +29,15 @@ def expected_add_s(belief, obj, *, ref=None, n: int = 200, max_particles: int = 
     ``max_particles`` (and 99 % of the weight) are used, their weights renormalised
     (an equally weighted belief contributes an evenly spaced subset).
     """
+    belief = as_instance(belief, ParticleBelief, "belief")
+    max_particles = as_count(max_particles, "max_particles", max=1_000_000, why="one ADD-S pass per particle")
+    ref = None if ref is None else as_pose(ref, "ref")
     idx = belief.credible_set(0.99)
     if len(idx) > max_particles:
         idx = np.sort(idx)[np.linspace(0, len(idx) - 1, max_particles).astype(int)]
     w = belief.weights[idx]
     w = w / w.sum()
-    ref = best_pose(belief) if ref is None else np.asarray(ref, dtype=float)
+    ref = best_pose(belief) if ref is None else ref
     # ADD-S(MAP, X) = mean over model points at MAP of the nearest point at X; swap the
     # roles (tree at MAP, queries from X): the same up to the asymmetry of ADD-S, and one tree.
     d = add_s(obj, belief.poses[idx], ref, n=n, rng=rng)
@@ -73,7 +78,7 @@ def prob_error_below(belief, obj, threshold: float, *, ref=None, metric: str = "
     if not isinstance(obj, MeshObject):
         raise ValidationError(f"obj must be a touchloc.models.MeshObject, got {type(obj).__name__}")
     threshold = as_positive_float(threshold, "threshold")
-    if metric not in ("add_s", "pose"):
+    if not isinstance(metric, str) or metric not in ("add_s", "pose"):
         raise ValidationError(f"metric must be 'add_s' or 'pose', got {metric!r}")
     n = as_count(n, "n", max=100_000, why="surface points per pose")
     max_particles = as_count(max_particles, "max_particles", max=100_000, why="poses scored")

@@ -60,6 +60,8 @@ def make_scenario(obj, setting: str = "planar", *, sigma_pos: float = 0.002, sig
             obj = load_object(obj)
     if not isinstance(obj, MeshObject):
         raise ValidationError(f"obj must be a bundled mesh name or a MeshObject, got {type(obj).__name__}")
+    if not isinstance(setting, str):
+        raise ValidationError(f"setting must be one of {sorted(SETTINGS)}, got {type(setting).__name__}")
     if setting == "planar":
         # standing on a table at z = 0
         region = PoseRegion.planar((0.0, 0.0), 0.05, z=-float(obj.bounds[0][2]))

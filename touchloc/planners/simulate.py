@@ -175,8 +175,14 @@ def execute(obj: MeshObject, true_pose, action, *, noise_pos: float = 0.0, noise
     """
     from .._util import as_rng
 
+    from .._validate import as_instance, as_nonnegative_float, as_pose
+
+    obj = as_instance(obj, MeshObject, "obj")
+    true_pose = as_pose(true_pose, "true_pose")
+    noise_pos = as_nonnegative_float(noise_pos, "noise_pos (m)")
+    noise_nor = as_nonnegative_float(noise_nor, "noise_nor")
     rng = as_rng(rng)
-    out = simulate(obj, np.asarray(true_pose, dtype=float)[None], [action])
+    out = simulate(obj, true_pose[None], [action])
     res = []
     for j, f in enumerate(out.fingers):
         if out.hit[0, j]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._validate import as_float_array, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "pose_features", "batched_entropy",
@@ -118,9 +119,10 @@ class NegEntropy(Utility):
     name = "entropy"
 
     def __init__(self, floor: float = 5e-4, features: str = "embed"):
-        if not (np.isfinite(floor) and floor > 0):
-            raise ValidationError(f"floor must be > 0 (m), got {floor}")
-        self.floor, self.features = float(floor), features
+        floor = as_positive_float(floor, "floor (m)")
+        if not isinstance(features, str) or features not in ("embed", "tangent"):
+            raise ValidationError(f"features must be 'embed' or 'tangent', got {features!r}")
+        self.floor, self.features = floor, features
 
     def prepare(self, poses, weights, region, rho):
         return pose_features(poses, region, rho, self.features)
@@ -165,7 +167,8 @@ class TaskSuccess(Utility):
     name = "success"
 
     def __init__(self, tolerances):
-        tol = np.asarray(tolerances, dtype=float).reshape(-1)
+        tol = as_float_array(tolerances, "tolerances", finite=False,
+                             expected="positive numbers, one per pose dimension").reshape(-1)
         if tol.size == 0 or np.any(np.isnan(tol)) or np.any(tol <= 0):
             raise ValidationError(f"tolerances must be positive numbers, one per pose dimension, got {tolerances!r}")
         self.tolerances = tol
@@ -210,8 +213,8 @@ def as_utility(utility) -> Utility:
     """A Utility from a name ("entropy", "kl") or an instance."""
     if isinstance(utility, Utility):
         return utility
-    if utility == "entropy":
+    if isinstance(utility, str) and utility == "entropy":
         return NegEntropy()
-    if utility == "kl":
+    if isinstance(utility, str) and utility == "kl":
         return KLDivergence()
     raise ValidationError(f"utility must be 'entropy', 'kl' or a Utility instance (e.g. TaskSuccess), got {utility!r}")

@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._util import as_rng
+from .._validate import (as_bool, as_count, as_float, as_float_array, as_nonnegative_float, as_positive_float,
+                         as_probability)
 from ..errors import TouchlocError, ValidationError
 
 __all__ = [
@@ -118,7 +120,11 @@ def aev_quantize(Z, n_ref: int, *, epochs: int = 30, eta=(0.5, 0.01), equalize: 
     labels : (n,) int
         Index of the nearest reference of each row of Z.
     """
-    Z = np.asarray(Z, dtype=np.float64)
+    Z = _as_rows(Z, "Z")
+    n_ref = as_count(n_ref, "n_ref", max=100_000, why="each reference is compared with every sample")
+    epochs = as_count(epochs, "epochs", max=100_000, why="each epoch is a pass over the samples")
+    eta = _as_rates(eta)
+    equalize = as_nonnegative_float(equalize, "equalize")
     rng = as_rng(rng)
     n, d = Z.shape
     k = max(1, min(int(n_ref), n))
@@ -156,6 +162,22 @@ def aev_quantize(Z, n_ref: int, *, epochs: int = 30, eta=(0.5, 0.01), equalize: 
     return refs, _nearest(Z, refs)
 
 
+def _as_rows(Z, name, *, allow_empty=False) -> np.ndarray:
+    """(n, d) finite float samples."""
+    Z = as_float_array(Z, name, shape=(None, None), expected="an (n, d) array of finite samples")
+    if not allow_empty and Z.shape[0] == 0:
+        raise ValidationError(f"{name} must hold at least one sample, got shape {Z.shape}")
+    return Z
+
+
+def _as_rates(eta) -> tuple:
+    """A (first, last) pair of positive learning rates."""
+    a, b = as_float_array(eta, "eta", shape=(2,), expected="(first, last) learning rates > 0")
+    if not (a > 0 and b > 0):
+        raise ValidationError(f"eta must be (first, last) learning rates > 0, got {(float(a), float(b))}")
+    return float(a), float(b)
+
+
 def _nearest(Z, refs, return_dist=False):
     d = (np.einsum("ij,ij->i", Z, Z)[:, None] - 2.0 * Z @ refs.T + np.einsum("ij,ij->i", refs, refs)[None, :])
     lab = np.argmin(d, axis=1)
@@ -171,7 +193,8 @@ def svd_pca(Zc, n_pc: int) -> np.ndarray:
     Computed from the thin SVD of the (n, d) data; directions beyond the rank of the data
     are zero, so a cell with fewer samples than ``n_pc`` projects to zeros there.
     """
-    Zc = np.asarray(Zc, dtype=np.float64)
+    Zc = _as_rows(Zc, "Zc", allow_empty=True)
+    n_pc = as_count(n_pc, "n_pc", min=0, max=100_000, why="an (n_pc, d) matrix")
     W = np.zeros((int(n_pc), Zc.shape[1]))
     if len(Zc) == 0:
         return W
@@ -241,7 +264,14 @@ def sanger_pca(Zc, n_pc: int, *, epochs: int = 300, eta=(0.2, 0.005), rng=None, 
         Rows approximate the leading eigenvectors of the sample covariance (in order of
         decreasing eigenvalue, up to sign), with unit length at convergence.
     """
-    Zc = np.asarray(Zc, dtype=np.float64)
+    Zc = _as_rows(Zc, "Zc", allow_empty=True)
+    n_pc = as_count(n_pc, "n_pc", min=0, max=100_000, why="an (n_pc, d) matrix")
+    epochs = as_count(epochs, "epochs", max=100_000, why="each epoch is a pass over the samples")
+    eta = _as_rates(eta)
+    if not isinstance(space, str):
+        raise ValidationError(f"space must be 'auto', 'input' or 'samples', got {space!r}")
+    if W0 is not None:
+        W0 = as_float_array(W0, "W0", shape=(int(n_pc), Zc.shape[1]))
     rng = as_rng(rng)
     n, d = Zc.shape
     k = int(n_pc)
@@ -296,6 +326,9 @@ class LocalLinearMap:
     """
 
     def __init__(self, n_nodes: int = 20, *, ridge: float = 1.0, epochs: int = 30, rng=None):
+        n_nodes = as_count(n_nodes, "n_nodes", max=100_000, why="one linear map per node")
+        ridge = as_nonnegative_float(ridge, "ridge")
+        epochs = as_count(epochs, "epochs", max=100_000, why="each epoch is a pass over the samples")
         self.n_nodes = int(n_nodes)
         self.ridge = float(ridge)
         self.epochs = int(epochs)
@@ -439,16 +472,19 @@ class SequenceClassifier(_SequenceModel):
                  ridge: float = 1.0, reject_quantile: float | None = None, reject_folds: int = 10,
                  unknown_label=None, novelty: str = "relative", rng=None):
         for name, v in (("n_vq", n_vq), ("n_pc", n_pc), ("n_llm", n_llm)):
-            if int(v) != v or v < 1:
-                raise ValidationError(f"{name} must be a positive integer, got {v}")
-        if pca not in ("svd", "sanger"):
+            as_count(v, name, max=100_000, why="each is a set of cells or maps trained on the scans")
+        for name, v in (("vq_epochs", vq_epochs), ("llm_epochs", llm_epochs), ("sanger_epochs", sanger_epochs)):
+            as_count(v, name, max=100_000, why="each epoch is a pass over the training scans")
+        reject_folds = as_count(reject_folds, "reject_folds", min=2, max=1000)
+        ridge = as_nonnegative_float(ridge, "ridge")
+        align = as_bool(align, "align")
+        if not isinstance(pca, str) or pca not in ("svd", "sanger"):
             raise ValidationError(f"pca must be 'svd' or 'sanger', got {pca!r}")
-        if novelty not in ("relative", "absolute"):
+        if not isinstance(novelty, str) or novelty not in ("relative", "absolute"):
             raise ValidationError(f"novelty must be 'relative' or 'absolute', got {novelty!r}")
-        if not (np.isfinite(scale) and scale > 0):
-            raise ValidationError(f"scale must be a positive number, got {scale}")
-        if reject_quantile is not None and not 0 < reject_quantile < 1:
-            raise ValidationError(f"reject_quantile must lie in (0, 1) or be None, got {reject_quantile}")
+        scale = as_positive_float(scale, "scale")
+        if reject_quantile is not None:
+            reject_quantile = as_probability(reject_quantile, "reject_quantile", open_low=True, open_high=True)
         self.n_vq, self.n_pc, self.n_llm = int(n_vq), int(n_pc), int(n_llm)
         self.pca, self.align, self.scale = pca, bool(align), float(scale)
         self.vq_epochs, self.llm_epochs, self.sanger_epochs = int(vq_epochs), int(llm_epochs), int(sanger_epochs)
@@ -587,8 +623,9 @@ class NearestNeighbourClassifier(_SequenceModel):
 
     def __init__(self, *, align: bool = True, scale: float = 4095.0, reject_quantile: float | None = None,
                  unknown_label=None):
-        if reject_quantile is not None and not 0 < reject_quantile < 1:
-            raise ValidationError(f"reject_quantile must lie in (0, 1) or be None, got {reject_quantile}")
+        align, scale = as_bool(align, "align"), as_positive_float(scale, "scale")
+        if reject_quantile is not None:
+            reject_quantile = as_probability(reject_quantile, "reject_quantile", open_low=True, open_high=True)
         self.align, self.scale = bool(align), float(scale)
         self.reject_quantile = reject_quantile
         self.unknown_label = unknown_label

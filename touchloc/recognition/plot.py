@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_count, as_float_array, as_name, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["plot_scan"]
@@ -28,9 +29,14 @@ def plot_scan(frames, *, every: int = 2, n_shown: int = 60, columns: int = 12, t
     -------
     matplotlib.figure.Figure
     """
-    F = np.asarray(frames)
-    if F.ndim != 3:
+    F = as_float_array(frames, "frames", expected="(n_frames, rows, cols) pressures")
+    if F.ndim != 3 or 0 in F.shape:
         raise ValidationError(f"frames must be (n_frames, rows, cols), got {F.shape}")
+    every = as_count(every, "every", max=100_000)
+    n_shown = as_count(n_shown, "n_shown", max=1000, why="one tile per frame shown")
+    columns = as_count(columns, "columns", max=1000)
+    title = as_name(title, "title")
+    max_value = as_positive_float(max_value, "max_value")
     import matplotlib
 
     matplotlib.use("Agg", force=False)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._util import as_rng, progress
+from .._validate import as_bool, as_callable, as_count, as_float_array
 from ..errors import ValidationError
 
 __all__ = ["ProtocolResult", "RejectionResult", "evaluate_protocol", "evaluate_rejection", "bundled_objects", "procedural_objects",
@@ -73,7 +74,12 @@ def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int
     -------
     ProtocolResult
     """
-    y = np.asarray(y)
+    X, y = _check_scans(X, y)
+    make_classifier = as_callable(make_classifier, "make_classifier")
+    n_train = as_count(n_train, "n_train", max=100_000)
+    n_splits = as_count(n_splits, "n_splits", max=10_000, why="each split trains a classifier")
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
     if len(y) != len(X):
         raise ValidationError(f"y must have one label per scan ({len(X)}), got {len(y)}")
     classes, yi = np.unique(y, return_inverse=True)
@@ -131,7 +137,11 @@ def evaluate_rejection(X, y, make_classifier, *, n_unknown: int = 2, n_train: in
     The classifier (from ``make_classifier(split_index)``) must have ``novelty_score``;
     if it calibrates a ``rejection_threshold_`` the rejection rates at it are reported.
     """
-    y = np.asarray(y)
+    X, y = _check_scans(X, y)
+    make_classifier = as_callable(make_classifier, "make_classifier")
+    n_unknown = as_count(n_unknown, "n_unknown")
+    n_train = as_count(n_train, "n_train", max=100_000)
+    n_splits = as_count(n_splits, "n_splits", max=10_000, why="each split trains a classifier")
     classes, yi = np.unique(y, return_inverse=True)
     if not 1 <= n_unknown <= len(classes) - 2:
         raise ValidationError(f"n_unknown must leave at least two known classes of {len(classes)}, got {n_unknown}")
@@ -192,6 +202,25 @@ def procedural_objects() -> dict:
         return {k: MeshObject(m, name=k) for k, m in shapes.items()}
 
 
+def _check_scans(X, y):
+    """Scans as the classifiers take them, and one label per scan."""
+    from .classifier import _as_sequences
+
+    X = _as_sequences(X)
+    y = np.asarray(y)
+    if y.ndim != 1 or len(y) != len(X):
+        raise ValidationError(f"y must hold one label per scan ({len(X)},), got shape {y.shape}")
+    return X, y
+
+
+def _scores(x, name) -> np.ndarray:
+    """(m,) novelty scores: +-inf allowed, NaN not."""
+    a = as_float_array(x, name, finite=False, expected="a 1-D array of novelty scores").reshape(-1)
+    if np.isnan(a).any():
+        raise ValidationError(f"{name} must not contain NaN")
+    return a
+
+
 def roc_curve(scores_known, scores_unknown):
     """False and true positive rates of "unknown" for every threshold on a novelty score.
 
@@ -200,7 +229,8 @@ def roc_curve(scores_known, scores_unknown):
     fpr, tpr : (m,) float
         Known sequences wrongly rejected, unknown sequences rightly rejected.
     """
-    s = np.concatenate([np.asarray(scores_known, float), np.asarray(scores_unknown, float)])
+    scores_known, scores_unknown = _scores(scores_known, "scores_known"), _scores(scores_unknown, "scores_unknown")
+    s = np.concatenate([scores_known, scores_unknown])
     lab = np.concatenate([np.zeros(len(scores_known)), np.ones(len(scores_unknown))])
     order = np.argsort(-s, kind="mergesort")
     s, lab = s[order], lab[order]
@@ -214,8 +244,8 @@ def roc_curve(scores_known, scores_unknown):
 
 def roc_auc(scores_known, scores_unknown) -> float:
     """Area under the ROC of a novelty score (0.5 = chance, 1 = perfect separation)."""
-    a = np.asarray(scores_known, float)[:, None]
-    b = np.asarray(scores_unknown, float)[None, :]
+    a = _scores(scores_known, "scores_known")[:, None]
+    b = _scores(scores_unknown, "scores_unknown")[None, :]
     if a.size == 0 or b.size == 0:
         raise ValidationError("roc_auc needs at least one known and one unknown score")
     return float(np.mean((b > a) + 0.5 * (b == a)))

@@ -45,6 +45,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._util import as_rng, progress
+from .._validate import as_bool, as_count, as_float, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["PadConfig", "Scan", "TactileScanner", "simulate_dataset"]
@@ -88,14 +89,15 @@ class PadConfig:
     def __post_init__(self):
         for name in ("pitch", "frame_rate", "layer_thickness", "saturation_depth", "approach_step",
                      "linear_speed", "angular_speed", "tilt_step", "roll_step"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValidationError(f"PadConfig.{name} must be a positive finite number, got {v}")
+            as_positive_float(getattr(self, name), f"PadConfig.{name}")
         for name in ("spread", "gain_jitter", "noise", "floor", "max_tilt", "table_clearance",
                      "translation_jitter", "rotation_jitter"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValidationError(f"PadConfig.{name} must be a finite number >= 0, got {v}")
+            as_nonnegative_float(getattr(self, name), f"PadConfig.{name}")
+        as_count(self.n_texels, "PadConfig.n_texels", min=2, max=1024, why="a pad has n_texels^2 texels")
+        as_count(self.subsamples, "PadConfig.subsamples", max=64, why="subsamples^2 rays per texel")
+        as_count(self.n_frames, "PadConfig.n_frames", max=100_000, why="every frame of a scan is kept")
+        as_positive_float(self.max_value, "PadConfig.max_value")
+        as_float(self.contact_threshold, "PadConfig.contact_threshold")
         if int(self.n_texels) != self.n_texels or self.n_texels < 2:
             raise ValidationError(f"PadConfig.n_texels must be an integer >= 2, got {self.n_texels}")
         if int(self.subsamples) != self.subsamples or self.subsamples < 1:
@@ -461,12 +463,25 @@ def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | No
     y : (n_objects * n_scans,) str
         Object name of each scan, grouped by object.
     """
+    n_scans = as_count(n_scans, "n_scans", max=100_000, why="every scan (n_frames x texels) is kept in memory")
+    if scanner is not None and not isinstance(scanner, TactileScanner):
+        raise ValidationError(f"scanner must be a TactileScanner or None, got {type(scanner).__name__}")
+    if progress_bar is not None:
+        progress_bar = as_bool(progress_bar, "progress_bar")
+    if isinstance(objects, (str, bytes)) or not hasattr(objects, "__iter__"):
+        raise ValidationError(f"objects must be a dict name -> MeshObject or a list of MeshObjects, "
+                              f"got {type(objects).__name__}")
     if isinstance(objects, dict):
         items = list(objects.items())
     else:
         items = [(getattr(o, "name", str(i)), o) for i, o in enumerate(objects)]
     if not items:
         raise ValidationError("objects must hold at least one object, got none")
+    from ..models import MeshObject
+
+    for name, o in items:
+        if not isinstance(o, MeshObject):
+            raise ValidationError(f"objects[{name!r}] must be a MeshObject, got {type(o).__name__}")
     scanner = scanner or TactileScanner()
     rng = as_rng(rng)
     X = np.concatenate([scanner.scan_many(o, n_scans, rng=rng, progress_bar=progress_bar) for _, o in items])
