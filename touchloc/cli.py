@@ -111,6 +111,22 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"touchloc {args.command}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
+    except SystemError as exc:
+        # Ctrl-C inside C code (numba loading its cache) arrives wrapped in a SystemError
+        if not _caused_by_interrupt(exc):
+            raise
+        print(f"touchloc {args.command}: interrupted", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
+
+
+def _caused_by_interrupt(exc) -> bool:
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 # -- helpers shared by the subcommands -----------------------------------------------
