@@ -7,13 +7,16 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from .._util import as_rng, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
+from ..geometry import make_poses
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
+from ._cover import accept_draws
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -141,6 +144,38 @@ class ScalingSeries:
     # -- Alg. 1 building blocks -------------------------------------------------------
     def _even_density_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float):
         """Sample M particles per delta-neighbourhood of the union of delta_prev balls.
+
+        Rejection sampling: draw from the ball of a random centre, keep a draw with
+        probability 1 / (number of balls containing it), and keep draws inside the
+        region. Returns poses and the estimated volume of the union.
+
+        The draws for full rotations are made and embedded as quaternions (only the kept
+        ones become matrices), and the ball counts compare each draw with the neighbours
+        of its own centre only (:func:`touchloc.belief._cover.ball_counts`); the
+        distribution is that of :meth:`_even_density_cover_reference`.
+        """
+        dim = region.dim
+        rng = self.rng
+        n_c = len(centers)
+        per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
+        total = min(n_c * per, 4 * self.max_particles)
+        pick = rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+        draws = _Draws(region, centers, pick, delta_prev, rng)
+        keep = accept_draws(draws.centres_emb, draws.emb, pick, delta_prev, rng, mask=draws.inside,
+                            flip_dims=4 if region.rotation == "full" else 0)
+        acc = keep.mean()
+        volume = n_c * ball_volume(dim, delta_prev) * acc
+        n_target = int(np.clip(round(self.m * volume / ball_volume(dim, delta)), 1, self.max_particles))
+        idx = np.flatnonzero(keep)
+        if len(idx) == 0:  # every draw fell outside the region: keep the centres
+            return centers.copy(), volume
+        if len(idx) > n_target:
+            idx = rng.choice(idx, n_target, replace=False)
+        return draws.poses(idx), volume
+
+    def _even_density_cover_reference(self, region: PoseRegion, centers, delta_prev: float, delta: float):
+        """The cover as first written (one KD-tree query per candidate), kept as the
+        reference that tests and benchmarks compare :meth:`_even_density_cover` with.
 
         Rejection sampling: draw from the ball of a random centre, keep a draw with
         probability 1 / (number of balls containing it), and keep draws inside the
@@ -368,6 +403,65 @@ class ScalingSeries:
         self.belief = step.belief
         self._pending_predict = False
         return self.belief
+
+
+def _quat_from_rotvec(w):
+    """Unit quaternions (x, y, z, w) of rotation vectors (N, 3)."""
+    a = np.linalg.norm(w, axis=1)
+    # sin(a/2)/a, with its limit 1/2 - a^2/48 near zero
+    s = np.where(a > 1e-6, np.sin(0.5 * a) / np.where(a > 1e-6, a, 1.0), 0.5 - a * a / 48.0)
+    return np.concatenate([w * s[:, None], np.cos(0.5 * a)[:, None]], axis=1)
+
+
+def _quat_mul(p, q):
+    """Hamilton products p q of (N, 4) quaternions (x, y, z, w): the rotation q, then p."""
+    pv, pw = p[:, :3], p[:, 3:]
+    qv, qw = q[:, :3], q[:, 3:]
+    v = pw * qv + qw * pv + np.cross(pv, qv)
+    w = pw * qw - np.sum(pv * qv, axis=1, keepdims=True)
+    return np.concatenate([v, w], axis=1)
+
+
+class _Draws:
+    """Candidates of the cover: uniform in the metric ball of radius ``r`` around
+    ``centers[pick]`` (as :meth:`PoseRegion.perturb`), with their embedding
+    (:meth:`PoseRegion.embed`) and region membership.
+
+    Full rotations are handled as quaternions (composition ``exp(w) q``), so that only
+    the candidates finally kept are turned into (4, 4) matrices.
+    """
+
+    def __init__(self, region: PoseRegion, centers, pick, r: float, rng):
+        self.region = region
+        if region.rotation != "full":
+            self._poses = region.perturb(centers[pick], r, rng=rng, ball=True)
+            self.inside = region.contains(self._poses)
+            self.centres_emb = region.embed(centers)
+            self.emb = region.embed(self._poses)
+            return
+        n, d = len(pick), region.dim
+        free = region.free_translation
+        k = int(free.sum())
+        g = rng.normal(size=(n, d))
+        g /= np.linalg.norm(g, axis=1, keepdims=True)
+        v = g * (r * rng.random(n) ** (1.0 / d))[:, None]
+        rho = region._rho()
+        qc = Rotation.from_matrix(centers[:, :3, :3]).as_quat()
+        qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
+        t = centers[pick, :3, 3].copy()
+        t[:, free] += v[:, :k]
+        q = _quat_mul(_quat_from_rotvec(v[:, k:] / rho), qc[pick])
+        q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+        self._t, self._q = t, q
+        self.inside = np.all(np.abs(t - region.center) <= region.half_extent + 1e-9, axis=1)
+        self.centres_emb = np.concatenate([centers[:, :3, 3][:, free], 2.0 * rho * qc], axis=1)
+        self.emb = np.concatenate([t[:, free], 2.0 * rho * q], axis=1)
+
+    def poses(self, idx) -> np.ndarray:
+        """(len(idx), 4, 4) poses of the chosen candidates."""
+        if self.region.rotation != "full":
+            return self._poses[idx]
+        return make_poses(Rotation.from_quat(self._q[idx]).as_matrix(), self._t[idx])
 
 
 def _kernel_prior(region, poses, log_w, delta):

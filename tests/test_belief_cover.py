@@ -1,0 +1,131 @@
+"""The even density cover of Scaling Series: fast ball counts against a KD-tree, and the
+cover's distribution against the reference implementation."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from touchloc.belief import PoseRegion, ScalingSeries
+from touchloc.belief._cover import accept_draws, ball_counts
+from touchloc.belief.scaling_series import _Draws
+from touchloc.data import load_object
+from touchloc.models import ProximityModel
+
+
+@pytest.fixture(scope="module")
+def mug():
+    return load_object("mug")
+
+
+def _cluster(region, n, spread, rng):
+    """n poses scattered around one pose (a late-scale set of centres)."""
+    ref = region.sample(1, rng=rng)
+    return region.perturb(np.repeat(ref, n, axis=0), spread, rng=rng, ball=False)
+
+
+def _kdtree_counts(region, centres, draws, r):
+    tree = cKDTree(region.embed(centres))
+    c = tree.query_ball_point(region.embed(draws), r * 1.0000001, return_length=True)
+    f = region.embed_flipped(draws)
+    if f is not None:
+        c = c + tree.query_ball_point(f, r * 1.0000001, return_length=True)
+    return c
+
+
+@pytest.mark.parametrize("rotation", ["full", "yaw"])
+@pytest.mark.parametrize("r_over_spread", [0.3, 1.0, 8.0])
+def test_ball_counts_equal_a_kdtree_query_per_draw(rotation, r_over_spread):
+    rng = np.random.default_rng(3)
+    region = PoseRegion.box((0, 0, 0), 0.2, rotation, rho=0.05)
+    spread = 0.02
+    centres = _cluster(region, 600, spread, rng)
+    if rotation == "full":  # put some centres near 180 deg turns, where the quaternion sign flips
+        centres[:50, :3, :3] = centres[:50, :3, :3] @ np.diag([1.0, -1.0, -1.0])
+    r = r_over_spread * spread
+    pick = rng.integers(0, len(centres), 5000)
+    d = _Draws(region, centres, pick, r, rng)
+    got = ball_counts(d.centres_emb, d.emb, pick, r, flip_dims=4 if rotation == "full" else 0)
+    want = _kdtree_counts(region, centres, d.poses(np.arange(len(pick))), r)
+    assert np.all(got >= 1)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_draws_match_the_region_perturbation_and_embedding():
+    rng = np.random.default_rng(0)
+    region = PoseRegion.box((0.1, 0, 0), (0.1, 0.05, 0.0), "full", rho=0.07)
+    centres = region.sample(50, rng=rng)
+    pick = rng.integers(0, 50, 20000)
+    r = 0.03
+    d = _Draws(region, centres, pick, r, np.random.default_rng(5))
+    P = d.poses(np.arange(len(pick)))
+    np.testing.assert_allclose(d.emb, region.embed(P), atol=1e-12)
+    np.testing.assert_allclose(d.centres_emb, region.embed(centres), atol=1e-12)
+    np.testing.assert_array_equal(d.inside, region.contains(P))
+    # the same random stream through PoseRegion.perturb gives the same poses
+    ref = region.perturb(centres[pick], r, rng=np.random.default_rng(5), ball=True)
+    np.testing.assert_allclose(P, ref, atol=1e-12)
+    # and the metric offsets from the parents fill the ball of radius r uniformly
+    dist = np.array([np.linalg.norm(region.to_local(P[i:i + 1], centres[pick[i]])) for i in range(0, 20000, 20)])
+    assert dist.max() <= r * (1 + 1e-9)
+    # uniform in a 5-D ball: P(dist <= r/2) = 2^-5
+    assert abs(np.mean(dist <= r / 2) - 2.0**-5) < 0.02
+
+
+def test_capped_acceptance_keeps_one_over_count():
+    # heavily overlapping balls (radius larger than the cloud): every draw is in dozens
+    # of balls, so the capped two-stage acceptance is used
+    rng = np.random.default_rng(1)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full", rho=0.05)
+    centres = _cluster(region, 300, 0.01, rng)
+    r = 0.05
+    pick = rng.integers(0, 300, 4000)
+    d = _Draws(region, centres, pick, r, rng)
+    counts = ball_counts(d.centres_emb, d.emb, pick, r, flip_dims=4)
+    assert np.median(counts) > 16  # saturates the cap
+    trials = 40
+    kept = np.zeros(len(pick))
+    for s in range(trials):
+        kept += accept_draws(d.centres_emb, d.emb, pick, r, np.random.default_rng(100 + s), flip_dims=4, cap=8)
+    # expected number kept: sum 1/count; binomial spread over trials * draws
+    expect = trials * np.sum(1.0 / counts)
+    assert abs(kept.sum() - expect) < 4 * np.sqrt(expect)
+    # and by count: draws in few balls are kept more often than draws in many
+    lo, hi = counts <= np.percentile(counts, 25), counts >= np.percentile(counts, 75)
+    assert kept[lo].mean() / trials == pytest.approx(np.mean(1.0 / counts[lo]), rel=0.15)
+    assert kept[hi].mean() / trials == pytest.approx(np.mean(1.0 / counts[hi]), rel=0.15)
+
+
+def test_mask_excludes_draws():
+    rng = np.random.default_rng(2)
+    region = PoseRegion.box((0, 0, 0), 0.2, "yaw", rho=0.05)
+    centres = _cluster(region, 100, 0.01, rng)
+    pick = rng.integers(0, 100, 1000)
+    d = _Draws(region, centres, pick, 0.005, rng)
+    mask = np.arange(1000) % 2 == 0
+    keep = accept_draws(d.centres_emb, d.emb, pick, 0.005, rng, mask=mask)
+    assert not keep[~mask].any() and keep[mask].any()
+
+
+def test_cover_matches_the_reference_cover(mug):
+    """Same centres, many seeds: the fast cover and the reference draw the same number of
+    particles and estimate the same union volume, and their particles fill the same set."""
+    region = PoseRegion.box((0, 0, 0), 0.2, "full").with_rho(mug.radius)
+    rng = np.random.default_rng(4)
+    centres = _cluster(region, 400, 0.01, rng)
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    ss_new, ss_ref = ScalingSeries(model, rng=0), ScalingSeries(model, rng=0)
+    vol_new, vol_ref, n_new, n_ref = [], [], [], []
+    for s in range(6):
+        ss_new.rng, ss_ref.rng = np.random.default_rng(s), np.random.default_rng(1000 + s)
+        X, v = ss_new._even_density_cover(region, centres, 0.01, 0.0089)
+        Y, w = ss_ref._even_density_cover_reference(region, centres, 0.01, 0.0089)
+        vol_new.append(v), vol_ref.append(w), n_new.append(len(X)), n_ref.append(len(Y))
+    assert np.mean(vol_new) == pytest.approx(np.mean(vol_ref), rel=0.05)
+    assert np.mean(n_new) == pytest.approx(np.mean(n_ref), rel=0.05)
+    # every new particle lies in the union of the centres' balls
+    tree = cKDTree(np.vstack([region.embed(centres), region.embed_flipped(centres)]))
+    d, _ = tree.query(region.embed(X))
+    assert d.max() <= 0.01 * (1 + 1e-6)
+    # evenness: the nearest-centre distance distribution is the same for both covers
+    dy, _ = tree.query(region.embed(Y))
+    assert np.median(d) == pytest.approx(np.median(dy), rel=0.05)

@@ -1,0 +1,197 @@
+"""Ball counting for the even density cover of Scaling Series (Alg. 1).
+
+The cover draws candidates from the delta-balls around the centres and keeps each with
+probability 1 / (number of balls that contain it). The count is the expensive part:
+with thousands of centres in a 7-D embedding, a KD-tree query per candidate costs a
+few microseconds. Every ball that contains a candidate drawn from the ball of centre i
+has its centre within 2 delta of centre i, so a candidate only needs to be compared
+with the 2-delta neighbours of its own parent. The neighbour lists come from one
+KD-tree pair query over the centres (far fewer centres than candidates) and the
+comparisons run in a compiled, parallel loop.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["ball_counts", "accept_draws"]
+
+#: Above this many neighbour pairs (per candidate) the pair lists cost more than a
+#: direct KD-tree query per candidate, which is then used instead.
+MAX_PAIRS_PER_CANDIDATE = 64
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _count_in_lists(A, off, nbr, X, anchor, r2):
+    m, D = X.shape
+    out = np.zeros(m, np.int64)
+    for q in nb.prange(m):
+        a = anchor[q]
+        c = 0
+        for jj in range(off[a], off[a + 1]):
+            j = nbr[jj]
+            d = 0.0
+            for k in range(D):
+                t = A[j, k] - X[q, k]
+                d += t * t
+            if d <= r2:
+                c += 1
+        out[q] = c
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _csr(pairs, n):
+    """Symmetric neighbour lists (self included) from (P, 2) index pairs i < j."""
+    deg = np.ones(n, np.int64)
+    for p in range(pairs.shape[0]):
+        deg[pairs[p, 0]] += 1
+        deg[pairs[p, 1]] += 1
+    off = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        off[i + 1] = off[i] + deg[i]
+    fill = off[:-1].copy()
+    nbr = np.empty(off[n], np.int64)
+    for i in range(n):
+        nbr[fill[i]] = i
+        fill[i] += 1
+    for p in range(pairs.shape[0]):
+        a, b = pairs[p, 0], pairs[p, 1]
+        nbr[fill[a]] = b
+        fill[a] += 1
+        nbr[fill[b]] = a
+        fill[b] += 1
+    return off, nbr
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def _count_capped(A, X, r2, cap):
+    """min(cap, number of rows of A within sqrt(r2) of each row of X), scanning A in order."""
+    m, D = X.shape
+    n = A.shape[0]
+    out = np.zeros(m, np.int64)
+    for q in nb.prange(m):
+        c = 0
+        for j in range(n):
+            d = 0.0
+            for k in range(D):
+                t = A[j, k] - X[q, k]
+                d += t * t
+            if d <= r2:
+                c += 1
+                if c >= cap:
+                    break
+        out[q] = c
+    return out
+
+
+def _augment(E, X, parent, rr, flip_dims):
+    """Centres plus the flipped copies that can matter, and each candidate's anchor: the
+    copy of its parent within ``rr`` of it."""
+    C = len(E)
+    A = E
+    anchor = parent.copy()
+    if flip_dims:
+        # the sign-fixed coordinate of a flipped copy is -s: at distance >= s from any
+        # sign-fixed point, so only copies with s <= rr can count
+        near = np.flatnonzero(E[:, -1] <= rr)
+        if len(near):
+            F = E[near].copy()
+            F[:, -flip_dims:] *= -1.0
+            A = np.vstack([E, F])
+            flip_of = np.full(C, -1, np.int64)
+            flip_of[near] = C + np.arange(len(near))
+            fp = flip_of[parent]
+            far = (np.sum((X - E[parent]) ** 2, axis=1) > rr * rr) & (fp >= 0)
+            anchor[far] = fp[far]
+    return A, anchor
+
+
+def _pair_lists(tree, n, rr, n_queries):
+    """Neighbour lists within 2 rr, or None when they would outweigh direct queries."""
+    probe = np.linspace(0, n - 1, min(n, 64)).astype(np.int64)
+    mean_nb = float(np.mean(tree.query_ball_point(tree.data[probe], 2 * rr, return_length=True)))
+    if mean_nb * n > MAX_PAIRS_PER_CANDIDATE * max(n_queries, 1) + 1e5:
+        return None
+    pairs = tree.query_pairs(2 * rr, output_type="ndarray")
+    return _csr(np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), n)
+
+
+def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
+    """Number of balls of radius ``r`` around the centres that contain each candidate.
+
+    Parameters
+    ----------
+    centres_emb : (C, D) float
+        Embedded centres.
+    cand_emb : (M, D) float
+        Embedded candidates; candidate q lies within ``r`` of the embedded centre
+        ``parent[q]`` or (with ``flip_dims``) of its flipped copy.
+    parent : (M,) int
+    r : float
+    flip_dims : int
+        The embedding identifies ``e`` with ``e`` whose last ``flip_dims`` coordinates
+        are negated (a quaternion and its negative): a centre also contains a candidate
+        when its flipped copy is within ``r``. The last coordinate must be the
+        sign-fixed one (>= 0 in every embedding).
+
+    Returns
+    -------
+    (M,) int
+        The counts (exact; >= 1 up to rounding).
+    """
+    E = np.ascontiguousarray(centres_emb, dtype=np.float64)
+    X = np.ascontiguousarray(cand_emb, dtype=np.float64)
+    rr = r * 1.0000001
+    A, anchor = _augment(E, X, np.asarray(parent, dtype=np.int64), rr, flip_dims)
+    tree = cKDTree(A)
+    lists = _pair_lists(tree, len(A), rr, len(X))
+    if lists is None:
+        return _count_capped(A, X, rr * rr, len(A) + 1)
+    return _count_in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+
+
+def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, mask=None, cap: int = 16):
+    """Keep each candidate with probability 1 / (number of balls containing it).
+
+    Same parameters as :func:`ball_counts`, plus ``rng`` (numpy Generator) and ``mask``
+    (M,) bool: candidates to consider (the others are never kept). When the balls
+    overlap heavily (early scales, or many centres), counts are capped at ``cap``: a
+    candidate in ``cap`` or more balls is first kept with probability 1 / cap, and
+    only those kept are counted fully and kept again with probability cap / count, so
+    each candidate is still kept with probability exactly 1 / count.
+
+    Returns
+    -------
+    (M,) bool
+    """
+    E = np.ascontiguousarray(centres_emb, dtype=np.float64)
+    X = np.ascontiguousarray(cand_emb, dtype=np.float64)
+    parent = np.asarray(parent, dtype=np.int64)
+    M = len(X)
+    idx = np.arange(M) if mask is None else np.flatnonzero(mask)
+    out = np.zeros(M, dtype=bool)
+    # one uniform per candidate, masked or not: the random stream (and so the result)
+    # is that of counting every candidate
+    u = rng.random(M)[idx]
+    if len(idx) == 0 or len(E) == 0:
+        return out
+    X, parent = X[idx], parent[idx]
+    rr = r * 1.0000001
+    A, anchor = _augment(E, X, parent, rr, flip_dims)
+    tree = cKDTree(A)
+    lists = _pair_lists(tree, len(A), rr, len(X))
+    if lists is not None:
+        cnt = _count_in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+        out[idx] = u * np.maximum(cnt, 1) < 1.0
+        return out
+    cnt = np.maximum(_count_capped(A, X, rr * rr, cap), 1)
+    keep = u * cnt < 1.0
+    sat = np.flatnonzero(keep & (cnt >= cap))
+    if len(sat):
+        full = _count_capped(A, X[sat], rr * rr, len(A) + 1)
+        keep[sat] = rng.random(len(sat)) * full < cap
+    out[idx] = keep
+    return out
