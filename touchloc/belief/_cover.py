@@ -23,22 +23,34 @@ __all__ = ["ball_counts", "accept_draws"]
 MAX_PAIRS_PER_CANDIDATE = 64
 
 
+@nb.njit(inline="always", cache=True, nogil=True)
+def _in_list(A, off, nbr, X, q, a, r2):
+    D = X.shape[1]
+    c = 0
+    for jj in range(off[a], off[a + 1]):
+        j = nbr[jj]
+        d = 0.0
+        for k in range(D):
+            t = A[j, k] - X[q, k]
+            d += t * t
+        if d <= r2:
+            c += 1
+    return c
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def _count_in_lists(A, off, nbr, X, anchor, r2):
-    m, D = X.shape
-    out = np.zeros(m, np.int64)
-    for q in nb.prange(m):
-        a = anchor[q]
-        c = 0
-        for jj in range(off[a], off[a + 1]):
-            j = nbr[jj]
-            d = 0.0
-            for k in range(D):
-                t = A[j, k] - X[q, k]
-                d += t * t
-            if d <= r2:
-                c += 1
-        out[q] = c
+    out = np.zeros(X.shape[0], np.int64)
+    for q in nb.prange(X.shape[0]):
+        out[q] = _in_list(A, off, nbr, X, q, anchor[q], r2)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_in_lists_serial(A, off, nbr, X, anchor, r2):
+    out = np.zeros(X.shape[0], np.int64)
+    for q in range(X.shape[0]):
+        out[q] = _in_list(A, off, nbr, X, q, anchor[q], r2)
     return out
 
 
@@ -66,25 +78,52 @@ def _csr(pairs, n):
     return off, nbr
 
 
+@nb.njit(inline="always", cache=True, nogil=True)
+def _capped_one(A, X, q, r2, cap):
+    D = X.shape[1]
+    c = 0
+    for j in range(A.shape[0]):
+        d = 0.0
+        for k in range(D):
+            t = A[j, k] - X[q, k]
+            d += t * t
+        if d <= r2:
+            c += 1
+            if c >= cap:
+                break
+    return c
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
 def _count_capped(A, X, r2, cap):
     """min(cap, number of rows of A within sqrt(r2) of each row of X), scanning A in order."""
-    m, D = X.shape
-    n = A.shape[0]
-    out = np.zeros(m, np.int64)
-    for q in nb.prange(m):
-        c = 0
-        for j in range(n):
-            d = 0.0
-            for k in range(D):
-                t = A[j, k] - X[q, k]
-                d += t * t
-            if d <= r2:
-                c += 1
-                if c >= cap:
-                    break
-        out[q] = c
+    out = np.zeros(X.shape[0], np.int64)
+    for q in nb.prange(X.shape[0]):
+        out[q] = _capped_one(A, X, q, r2, cap)
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _count_capped_serial(A, X, r2, cap):
+    out = np.zeros(X.shape[0], np.int64)
+    for q in range(X.shape[0]):
+        out[q] = _capped_one(A, X, q, r2, cap)
+    return out
+
+
+#: Below this many candidates the counts run on one thread (the thread pool's start-up
+#: costs more than it saves, and much more on a loaded machine).
+PARALLEL_MIN = 4096
+
+
+def _in_lists(A, off, nbr, X, anchor, r2):
+    kernel = _count_in_lists if len(X) >= PARALLEL_MIN else _count_in_lists_serial
+    return kernel(A, off, nbr, X, anchor, r2)
+
+
+def _capped(A, X, r2, cap):
+    kernel = _count_capped if len(X) * len(A) >= PARALLEL_MIN * 256 else _count_capped_serial
+    return kernel(A, X, r2, cap)
 
 
 def _augment(E, X, parent, rr, flip_dims):
@@ -149,8 +188,8 @@ def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
     tree = cKDTree(A)
     lists = _pair_lists(tree, len(A), rr, len(X))
     if lists is None:
-        return _count_capped(A, X, rr * rr, len(A) + 1)
-    return _count_in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+        return _capped(A, X, rr * rr, len(A) + 1)
+    return _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
 
 
 def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, mask=None, cap: int = 16):
@@ -184,14 +223,14 @@ def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, m
     tree = cKDTree(A)
     lists = _pair_lists(tree, len(A), rr, len(X))
     if lists is not None:
-        cnt = _count_in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+        cnt = _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
         out[idx] = u * np.maximum(cnt, 1) < 1.0
         return out
-    cnt = np.maximum(_count_capped(A, X, rr * rr, cap), 1)
+    cnt = np.maximum(_capped(A, X, rr * rr, cap), 1)
     keep = u * cnt < 1.0
     sat = np.flatnonzero(keep & (cnt >= cap))
     if len(sat):
-        full = _count_capped(A, X[sat], rr * rr, len(A) + 1)
+        full = _capped(A, X[sat], rr * rr, len(A) + 1)
         keep[sat] = rng.random(len(sat)) * full < cap
     out[idx] = keep
     return out

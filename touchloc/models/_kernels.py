@@ -33,6 +33,11 @@ _STACK = 128
 # cache=: compiled code kept on disk when numba has a writable place for it (see touchloc._cache)
 _NB = dict(cache=numba_cache_enabled(__file__), fastmath=False, nogil=True)
 
+#: Below this many queries the kernels run on one thread: starting the thread pool costs
+#: more than it saves (and much more on a loaded machine).
+PARALLEL_MIN = 4096
+
+
 
 # ---------------------------------------------------------------------------------------
 # geometry
@@ -284,6 +289,22 @@ def _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
     return best, bf, bx, by, bz
 
 
+@nb.njit(inline="always", **_NB)
+def _bvh_row(q, tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n,
+             face, cost, closest):
+    nx = ny = nz = 0.0
+    if use_n:
+        nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+    best, bf, bx, by, bz = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                    P[q, 0], P[q, 1], P[q, 2], nx, ny, nz,
+                                    w if use_n else 0.0, np.inf)
+    cost[q] = best
+    face[q] = bf
+    closest[q, 0] = bx
+    closest[q, 1] = by
+    closest[q, 2] = bz
+
+
 @nb.njit(parallel=True, **_NB)
 def _bvh_query(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
     Q = P.shape[0]
@@ -291,17 +312,18 @@ def _bvh_query(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w,
     face = np.empty(Q, np.int64)
     closest = np.empty((Q, 3))
     for q in nb.prange(Q):
-        nx = ny = nz = 0.0
-        if use_n:
-            nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
-        best, bf, bx, by, bz = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                                        P[q, 0], P[q, 1], P[q, 2], nx, ny, nz,
-                                        w if use_n else 0.0, np.inf)
-        cost[q] = best
-        face[q] = bf
-        closest[q, 0] = bx
-        closest[q, 1] = by
-        closest[q, 2] = bz
+        _bvh_row(q, tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, face, cost, closest)
+    return face, cost, closest
+
+
+@nb.njit(**_NB)
+def _bvh_query_serial(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
+    Q = P.shape[0]
+    cost = np.empty(Q)
+    face = np.empty(Q, np.int64)
+    closest = np.empty((Q, 3))
+    for q in range(Q):
+        _bvh_row(q, tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, face, cost, closest)
     return face, cost, closest
 
 
@@ -317,7 +339,8 @@ def query_joint(tree: BVH, P, N, wp: float, wn: float):
     Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
-    f, c, cl = _bvh_query(tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left,
+    kernel = _bvh_query if len(P) >= PARALLEL_MIN else _bvh_query_serial
+    f, c, cl = kernel(tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left,
                           tree.right, tree.start, tree.count, P, Nn, w, use_n)
     return tree.face_id[f], c, cl
 
@@ -340,6 +363,43 @@ class CandidateGrid:
     adj: np.ndarray
 
 
+@nb.njit(inline="always", **_NB)
+def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+              plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend):
+    ix = int(np.floor((px - lo[0]) / h))
+    iy = int(np.floor((py - lo[1]) / h))
+    iz = int(np.floor((pz - lo[2]) / h))
+    best = np.inf
+    bf = -1
+    inside = 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_
+    cell = (ix * ny_ + iy) * nz_ + iz
+    if inside and offsets[cell + 1] > offsets[cell]:
+        for j in range(offsets[cell], offsets[cell + 1]):
+            f = ids[j]
+            c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+            if c < best:
+                best = c
+                bf = f
+        if descend:
+            # greedy descent over vertex-adjacent faces: on smooth surfaces the face
+            # whose normal best matches lies a few faces away from a sampled winner
+            for _ in range(256):
+                moved = False
+                for j in range(adj_off[bf], adj_off[bf + 1]):
+                    g = adj[j]
+                    c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
+                    if c < best:
+                        best = c
+                        bf = g
+                        moved = True
+                if not moved:
+                    break
+    else:  # outside the grid, or a cell too crowded to list: exact through the tree
+        best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                     px, py, pz, nx, ny, nz, w, np.inf)
+    return best, bf
+
+
 @nb.njit(parallel=True, **_NB)
 def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
                 plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
@@ -347,43 +407,28 @@ def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
     cost = np.empty(Q)
     face = np.empty(Q, np.int64)
     for q in nb.prange(Q):
-        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
         nx = ny = nz = 0.0
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
-        ix = int(np.floor((px - lo[0]) / h))
-        iy = int(np.floor((py - lo[1]) / h))
-        iz = int(np.floor((pz - lo[2]) / h))
-        best = np.inf
-        bf = -1
-        inside = 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_
-        cell = (ix * ny_ + iy) * nz_ + iz
-        if inside and offsets[cell + 1] > offsets[cell]:
-            for j in range(offsets[cell], offsets[cell + 1]):
-                f = ids[j]
-                c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
-                if c < best:
-                    best = c
-                    bf = f
-            if descend:
-                # greedy descent over vertex-adjacent faces: on smooth surfaces the face
-                # whose normal best matches lies a few faces away from a sampled winner
-                for _ in range(256):
-                    moved = False
-                    for j in range(adj_off[bf], adj_off[bf + 1]):
-                        g = adj[j]
-                        c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
-                        if c < best:
-                            best = c
-                            bf = g
-                            moved = True
-                    if not moved:
-                        break
-        else:  # outside the grid, or a cell too crowded to list: exact through the tree
-            best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                                         px, py, pz, nx, ny, nz, w, np.inf)
-        cost[q] = best
-        face[q] = bf
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                                     plo, phi, nlo, nhi, left, right, start, count,
+                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
+    return face, cost
+
+
+@nb.njit(**_NB)
+def _grid_query_serial(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                       plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
+    Q = P.shape[0]
+    cost = np.empty(Q)
+    face = np.empty(Q, np.int64)
+    for q in range(Q):
+        nx = ny = nz = 0.0
+        if use_n:
+            nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                                     plo, phi, nlo, nhi, left, right, start, count,
+                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
     return face, cost
 
 
@@ -527,7 +572,8 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
     Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    f, c = _grid_query(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2],
+    kernel = _grid_query if len(P) >= PARALLEL_MIN else _grid_query_serial
+    f, c = kernel(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2],
                        grid.offsets, grid.ids, grid.adj_off, grid.adj, tree.plo, tree.phi, tree.nlo,
                        tree.nhi, tree.left, tree.right, tree.start, tree.count, P, Nn,
                        grid.w if use_n else 0.0, use_n, use_n)

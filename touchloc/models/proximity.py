@@ -29,7 +29,11 @@ def contacts_in_object_frame(poses: np.ndarray, contacts: Contacts):
     """
     if not isinstance(contacts, Contacts):
         raise ValidationError(f"contacts must be a Contacts, got {type(contacts).__name__}")
-    poses = as_poses(poses)
+    return _to_object_frame(as_poses(poses), contacts)
+
+
+def _to_object_frame(poses, contacts):
+    """:func:`contacts_in_object_frame` for already validated poses."""
     R = poses[:, :3, :3]
     t = poses[:, :3, 3]
     # row-vector form: R^T (p - t) for every pose and contact is (p - t) @ R
@@ -168,7 +172,7 @@ class ProximityModel(MeasurementModel):
         """
         poses = as_poses(poses)
         contacts = _check_contacts(contacts)
-        P, Nrm = contacts_in_object_frame(poses, contacts)
+        P, Nrm = _to_object_frame(poses, contacts)
         use_n = Nrm is not None and self.sigma_nor is not None
         c = self.query_costs(P.reshape(-1, 3), Nrm.reshape(-1, 3) if use_n else None, method=method)
         return c.reshape(len(poses), len(contacts))
