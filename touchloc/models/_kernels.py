@@ -94,6 +94,12 @@ def _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w):
 
 
 @nb.njit(inline="always", **_NB)
+def _normal_term(nrm, f, nx, ny, nz, w):
+    """w |n - n_f|^2: a lower bound of face f's joint cost, without the triangle."""
+    return w * ((nx - nrm[f, 0]) ** 2 + (ny - nrm[f, 1]) ** 2 + (nz - nrm[f, 2]) ** 2)
+
+
+@nb.njit(inline="always", **_NB)
 def _box_d2(x, y, z, lo, hi, i):
     d = 0.0
     if x < lo[i, 0]:
@@ -254,6 +260,8 @@ def _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
         if left[node] < 0:
             s = start[node]
             for f in range(s, s + count[node]):
+                if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
+                    continue
                 c, qx, qy, qz = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
                 if c < best:
                     best = c
@@ -376,6 +384,8 @@ def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
     if inside and offsets[cell + 1] > offsets[cell]:
         for j in range(offsets[cell], offsets[cell + 1]):
             f = ids[j]
+            if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
+                continue
             c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
             if c < best:
                 best = c
@@ -387,6 +397,8 @@ def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
                 moved = False
                 for j in range(adj_off[bf], adj_off[bf + 1]):
                     g = adj[j]
+                    if _normal_term(nrm, g, nx, ny, nz, w) >= best:
+                        continue
                     c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
                     if c < best:
                         best = c
