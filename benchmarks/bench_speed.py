@@ -77,6 +77,12 @@ def worker() -> int:
             dt = time.perf_counter() - t0
             print(json.dumps({"time": dt, "correct": max(post, key=post.get) == req["truth"]}), flush=True)
             continue
+        if req.get("kind") == "likelihood":
+            print(json.dumps(_likelihood(model(req["mesh"]), cube, req["k"], req["seed"])), flush=True)
+            continue
+        if req.get("kind") == "cover":
+            print(json.dumps(_cover(model(req["mesh"]), cube, req["k"], req["seed"])), flush=True)
+            continue
         m = model(req["mesh"])
         true, c = _trial(m.obj, cube, req["k"], req["seed"])
         t0 = time.perf_counter()
@@ -85,6 +91,53 @@ def worker() -> int:
         print(json.dumps({"time": dt, "adds": float(add_s(m.obj, b.map_pose(), true)),
                           "evaluations": int(b.info.get("evaluations", 0))}), flush=True)
     return 0
+
+
+def _likelihood(m, cube, k, seed):
+    """Pose-contact pairs per second of the exact and fast likelihoods, on poses near the
+    truth (a late scale) and poses anywhere in the region (an early scale)."""
+    rng = np.random.default_rng(seed)
+    true, c = _trial(m.obj, cube, k, seed)
+    region = cube.with_rho(m.obj.radius)
+    near = region.perturb(np.repeat(true[None], 20000, axis=0), 0.01, rng=rng, ball=False)
+    far = region.sample(4000, rng=rng)
+    out = {}
+    for label, X in (("near", near), ("far", far)):
+        costs = {}
+        for method in ("exact", "fast"):
+            m.contact_costs(X[:100], c, method=method)
+            t0 = time.perf_counter()
+            costs[method] = m.contact_costs(X, c, method=method)
+            out[f"{label}_{method}"] = X.shape[0] * len(c) / (time.perf_counter() - t0)
+        err = (costs["fast"] - costs["exact"]).ravel()
+        out[f"{label}_err"] = [float(np.percentile(err, 99)), float(err.max()), float(err.min())]
+    return out
+
+
+def _cover(m, cube, k, seed):
+    """Seconds spent in the cover step of one localisation, and the same cover step of the
+    reference implementation on the same centres (current tree only)."""
+    from touchloc.belief import ScalingSeries
+
+    true, c = _trial(m.obj, cube, k, seed)
+    ss = ScalingSeries(m, rng=seed, progress=False)
+    if not hasattr(ss, "_even_density_cover_reference"):
+        return {}
+    fast, ref = ss._even_density_cover, ss._even_density_cover_reference
+    spent = {"cover": 0.0, "reference": 0.0}
+
+    def timed(region, centers, dp, d):
+        t0 = time.perf_counter()
+        ref(region, centers, dp, d)
+        t1 = time.perf_counter()
+        out = fast(region, centers, dp, d)
+        spent["reference"] += t1 - t0
+        spent["cover"] += time.perf_counter() - t1
+        return out
+
+    ss._even_density_cover = timed
+    ss.localize(c, cube)
+    return spent
 
 
 # -- driver side -------------------------------------------------------------------------
@@ -144,16 +197,19 @@ def run(quick: bool = False) -> str:
     from _common import table
 
     threads = int(os.environ.get("TOUCHLOC_BENCH_THREADS", "0")) or None
-    seeds = 2 if quick else 3
-    cases = [(m, k) for m in TUNED for k in (5, 10, 30)]
-    cases += [(m, 10) for m in (HELD_OUT[:1] if quick else HELD_OUT[:2])]
+    # (mesh, contacts, trials): few trials at 5 contacts, where the baseline takes longest
+    if quick:
+        cases = [("mug", 5, 1), ("mug", 10, 1), ("mug", 30, 1), ("can", 10, 1)]
+    else:
+        cases = [(m, k, 2 if k == 5 else 3) for m in TUNED for k in (5, 10, 30)]
+        cases += [(m, 10, 2) for m in HELD_OUT[:2]] + [(m, 30, 2) for m in HELD_OUT[2:]]
     with tempfile.TemporaryDirectory() as tmpd:
         base_path = _baseline_tree(Path(tmpd))
         cur = _Worker(ROOT, threads)
         base = _Worker(base_path, threads) if base_path else None
         rows, load = [], [os.getloadavg()[0]]
         try:
-            for mesh, k in cases:
+            for mesh, k, seeds in cases:
                 rb, rc = [], []
                 for s in range(seeds):
                     seed = 5000 + 100 * k + s
@@ -162,6 +218,21 @@ def run(quick: bool = False) -> str:
                     rc.append(cur.ask(mesh=mesh, k=k, seed=seed))
                 label = mesh + ("" if mesh in TUNED else " (held out)")
                 rows.append(_fmt_row(label, k, rb, rc))
+            # components: the cover step alone, and the likelihood alone
+            cov = [cur.ask(kind="cover", mesh=mesh, k=k, seed=7000 + k)
+                   for mesh, k in (("mug", 5), ("milk", 10))]
+            lik_rows = []
+            for mesh, k in (("mug", 5), ("mug", 30)) if not quick else (("mug", 5),):
+                lc = cur.ask(kind="likelihood", mesh=mesh, k=k, seed=9000 + k)
+                lb = base.ask(kind="likelihood", mesh=mesh, k=k, seed=9000 + k) if base else None
+                for where in ("near", "far"):
+                    r = [mesh, k, where, f"{lc[where + '_exact'] / 1e6:.2f}", f"{lc[where + '_fast'] / 1e6:.2f}",
+                         f"{lc[where + '_fast'] / lc[where + '_exact']:.1f}x",
+                         " / ".join(f"{v:.2g}" for v in lc[where + "_err"])]
+                    if lb:
+                        r += [f"{lc[where + '_exact'] / lb[where + '_exact']:.1f}x",
+                              f"{lc[where + '_fast'] / lb[where + '_fast']:.1f}x"]
+                    lik_rows.append(r)
         finally:
             cur.close()
             if base:
@@ -180,6 +251,19 @@ def run(quick: bool = False) -> str:
         f"{threads or os.cpu_count()}. Load average (1 min) before / after: "
         f"{load[0]:.1f} / {load[-1]:.1f} on {os.cpu_count()} cores.",
         table(head, rows),
+        "The cover step alone (`_even_density_cover` against `_even_density_cover_reference`, the "
+        "implementation of the baseline, both run on the same centres at every scale of one "
+        "localisation):",
+        table(["mesh", "contacts", "reference s", "current s", "speed-up"],
+              [[mesh, k, f"{r['reference']:.2f}", f"{r['cover']:.2f}", f"{r['reference'] / r['cover']:.1f}x"]
+               for (mesh, k), r in zip((("mug", 5), ("milk", 10)), cov) if r]),
+        "The likelihood alone (`contact_costs`, M pose-contact pairs per second): 20000 poses "
+        "within about 1 cm / 0.1 rad of the truth ('near', as at late scales) and 4000 poses "
+        "anywhere in the cube ('far', as at the first scales). 'fast - exact' is the error of the "
+        "fast method in d_M^2 (99th percentile / max / min over all pairs; never negative by "
+        "construction).",
+        table(["mesh", "contacts", "poses", "exact M/s", "fast M/s", "fast / exact", "fast - exact (p99 / max / min)"]
+              + (["exact vs baseline", "fast vs baseline"] if base_path else []), lik_rows),
     ]
     return "\n\n".join(text)
 
