@@ -129,3 +129,30 @@ def test_cover_matches_the_reference_cover(mug):
     # evenness: the nearest-centre distance distribution is the same for both covers
     dy, _ = tree.query(region.embed(Y))
     assert np.median(d) == pytest.approx(np.median(dy), rel=0.05)
+
+
+@pytest.mark.parametrize("k", [6, 30])
+def test_annealed_likelihood_prunes_exactly_like_a_full_evaluation(mug, k):
+    """Scaling Series stops evaluating particles that the prune step drops anyway: the
+    survivors and their weights are those of a complete evaluation."""
+    rng = np.random.default_rng(k)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full").with_rho(mug.radius)
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = mug.sample_surface(k, rng=rng)
+    from touchloc.models import Contacts
+
+    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    X = region.perturb(np.repeat(true[None], 5000, axis=0), 0.02, rng=rng, ball=False)
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    ss = ScalingSeries(model, rng=0)
+    for tau in (1.0, 30.0, 1000.0):
+        full = model.log_likelihood(X, contacts, temperature=tau)
+        part = ss._annealed_loglik(X, contacts, tau)
+        assert np.all(part >= full - 1e-9)  # a partial cost never exceeds the full one
+        kept_full = ss._prune(X, full)
+        kept_part = ss._prune(X, part)
+        np.testing.assert_array_equal(kept_part, kept_full)
+        keep = full >= full.max() + np.log(ss.prune_ratio)
+        np.testing.assert_allclose(part[keep], full[keep], rtol=1e-12, atol=1e-9)
+        if tau == 1.0:
+            assert np.sum(part > full + 1e-6) > 0  # some particles were left unfinished

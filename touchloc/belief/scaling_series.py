@@ -14,6 +14,7 @@ from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_nam
                          as_probability)
 from ..errors import ValidationError
 from ..geometry import make_poses
+from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
 from ._cover import accept_draws
@@ -208,6 +209,39 @@ class ScalingSeries:
             idx = rng.choice(idx, n_target, replace=False)
         return cand[idx], volume
 
+    def _annealed_loglik(self, X, contacts, tau: float):
+        """log p(contacts | X) / tau for one intermediate scale, evaluated contact group by
+        contact group, with the particles that the threshold prune will drop whatever their
+        other contacts say left unfinished.
+
+        Costs are non-negative, so a particle whose partial cost already exceeds the full
+        cost of the best particle by 2 tau log(1 / prune_ratio) is pruned. The best
+        particles are evaluated completely first to bound the best cost from above; the
+        prune keeps exactly the particles it keeps on complete evaluations, with the same
+        weights. The dropped ones get their partial value (still below the threshold).
+        """
+        model = self.model
+        K, N = len(contacts), len(X)
+        if (self.prune != "threshold" or K < 4 or N < 2000 or not isinstance(model, ProximityModel)
+                or type(model).log_likelihood is not ProximityModel.log_likelihood):
+            return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
+        method = model.method
+        if method == "auto":  # as one call over every pair would choose
+            method = "fast" if N * K >= AUTO_FAST_PAIRS else "exact"
+        groups = np.array_split(np.arange(K), 4)
+        cost = model.contact_costs(X, contacts[groups[0]], method=method).sum(axis=1)
+        rest = np.concatenate(groups[1:])
+        best = np.argsort(cost)[:32]
+        upper = float(np.min(cost[best] + model.contact_costs(X[best], contacts[rest], method=method).sum(axis=1)))
+        limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
+        alive = np.flatnonzero(cost <= limit)
+        for g in groups[1:]:
+            if len(alive) == 0:
+                break
+            cost[alive] += model.contact_costs(X[alive], contacts[g], method=method).sum(axis=1)
+            alive = alive[cost[alive] <= limit]
+        return finite_loglik(-0.5 * cost / tau)
+
     def _prune(self, poses, log_w):
         """Drop low-probability regions: "resample" keeps the distinct particles of a
         weighted resampling; "threshold" keeps every particle whose weight is at least
@@ -284,7 +318,10 @@ class ScalingSeries:
                 first = False  # the initial uniform draw is the cover of V0
             else:
                 X, volume = self._even_density_cover(region, X, delta, new_delta)
-            ll = finite_loglik(self.model.log_likelihood(X, contacts, temperature=tau))
+            if last:
+                ll = finite_loglik(self.model.log_likelihood(X, contacts, temperature=tau))
+            else:
+                ll = self._annealed_loglik(X, contacts, tau)
             lw = ll.copy()
             if last and log_prior is not None:
                 lw = lw + log_prior(X)
