@@ -6,6 +6,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from touchloc.belief import PoseRegion, ScalingSeries
+from touchloc.belief import _cover
 from touchloc.belief._cover import accept_draws, ball_counts
 from touchloc.belief.scaling_series import _Draws
 from touchloc.data import load_object
@@ -34,7 +35,10 @@ def _kdtree_counts(region, centres, draws, r):
 
 @pytest.mark.parametrize("rotation", ["full", "yaw"])
 @pytest.mark.parametrize("r_over_spread", [0.3, 1.0, 8.0])
-def test_ball_counts_equal_a_kdtree_query_per_draw(rotation, r_over_spread):
+@pytest.mark.parametrize("lists", [True, False])
+def test_ball_counts_equal_a_kdtree_query_per_draw(rotation, r_over_spread, lists, monkeypatch):
+    if not lists:  # forbid the neighbour lists: the fall-back paths must agree too
+        monkeypatch.setattr(_cover, "MAX_PAIRS_PER_CANDIDATE", -1e9)
     rng = np.random.default_rng(3)
     region = PoseRegion.box((0, 0, 0), 0.2, rotation, rho=0.05)
     spread = 0.02
@@ -71,9 +75,12 @@ def test_draws_match_the_region_perturbation_and_embedding():
     assert abs(np.mean(dist <= r / 2) - 2.0**-5) < 0.02
 
 
-def test_capped_acceptance_keeps_one_over_count():
+def test_capped_acceptance_keeps_one_over_count(monkeypatch):
     # heavily overlapping balls (radius larger than the cloud): every draw is in dozens
-    # of balls, so the capped two-stage acceptance is used
+    # of balls; with the neighbour lists forbidden the capped two-stage acceptance is used
+    monkeypatch.setattr(_cover, "MAX_PAIRS_PER_CANDIDATE", -1e9)
+    used = []
+    monkeypatch.setattr(_cover, "_capped", lambda *a: used.append(1) or _cover._count_capped_serial(*a))
     rng = np.random.default_rng(1)
     region = PoseRegion.box((0, 0, 0), 0.2, "full", rho=0.05)
     centres = _cluster(region, 300, 0.01, rng)
@@ -86,6 +93,7 @@ def test_capped_acceptance_keeps_one_over_count():
     kept = np.zeros(len(pick))
     for s in range(trials):
         kept += accept_draws(d.centres_emb, d.emb, pick, r, np.random.default_rng(100 + s), flip_dims=4, cap=8)
+    assert used  # the capped scan ran
     # expected number kept: sum 1/count; binomial spread over trials * draws
     expect = trials * np.sum(1.0 / counts)
     assert abs(kept.sum() - expect) < 4 * np.sqrt(expect)
@@ -93,6 +101,21 @@ def test_capped_acceptance_keeps_one_over_count():
     lo, hi = counts <= np.percentile(counts, 25), counts >= np.percentile(counts, 75)
     assert kept[lo].mean() / trials == pytest.approx(np.mean(1.0 / counts[lo]), rel=0.15)
     assert kept[hi].mean() / trials == pytest.approx(np.mean(1.0 / counts[hi]), rel=0.15)
+
+
+def test_acceptance_without_neighbour_lists_keeps_one_over_count(monkeypatch):
+    # sparse balls but lists forbidden: counts come from a KD-tree query per draw
+    monkeypatch.setattr(_cover, "MAX_PAIRS_PER_CANDIDATE", -1e9)
+    rng = np.random.default_rng(6)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full", rho=0.05)
+    centres = _cluster(region, 300, 0.02, rng)
+    pick = rng.integers(0, 300, 3000)
+    d = _Draws(region, centres, pick, 0.01, rng)
+    counts = ball_counts(d.centres_emb, d.emb, pick, 0.01, flip_dims=4)
+    kept = sum(accept_draws(d.centres_emb, d.emb, pick, 0.01, np.random.default_rng(s), flip_dims=4)
+               for s in range(20))
+    expect = 20 * np.sum(1.0 / counts)
+    assert abs(kept.sum() - expect) < 4 * np.sqrt(expect)
 
 
 def test_mask_excludes_draws():

@@ -18,9 +18,10 @@ from scipy.spatial import cKDTree
 
 __all__ = ["ball_counts", "accept_draws"]
 
-#: Above this many neighbour pairs (per candidate) the pair lists cost more than a
-#: direct KD-tree query per candidate, which is then used instead.
-MAX_PAIRS_PER_CANDIDATE = 64
+#: Above this many neighbour pairs (per candidate) the pair lists cost more (in time and
+#: memory) than counting otherwise: a capped scan where balls overlap heavily, else a
+#: KD-tree query per candidate.
+MAX_PAIRS_PER_CANDIDATE = 32
 
 
 @nb.njit(inline="always", cache=True, nogil=True)
@@ -148,14 +149,24 @@ def _augment(E, X, parent, rr, flip_dims):
     return A, anchor
 
 
-def _pair_lists(tree, n, rr, n_queries):
-    """Neighbour lists within 2 rr, or None when they would outweigh direct queries."""
-    probe = np.linspace(0, n - 1, min(n, 64)).astype(np.int64)
-    mean_nb = float(np.mean(tree.query_ball_point(tree.data[probe], 2 * rr, return_length=True)))
-    if mean_nb * n > MAX_PAIRS_PER_CANDIDATE * max(n_queries, 1) + 1e5:
-        return None
-    pairs = tree.query_pairs(2 * rr, output_type="ndarray")
-    return _csr(np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), n)
+def _plan(tree, n, rr, n_queries, cap):
+    """How to count, from the neighbourhoods of a few centres.
+
+    Returns ("lists", (off, nbr)) when the neighbour lists within 2 rr are small,
+    ("capped", None) when the balls overlap so much that a capped scan stops early, and
+    ("tree", None) otherwise (one KD-tree query per candidate).
+    """
+    probe = tree.data[np.linspace(0, n - 1, min(n, 64)).astype(np.int64)]
+    mean_2r = float(np.mean(tree.query_ball_point(probe, 2 * rr, return_length=True)))
+    if mean_2r * n <= MAX_PAIRS_PER_CANDIDATE * max(n_queries, 1) + 1e5:
+        pairs = tree.query_pairs(2 * rr, output_type="ndarray")
+        return "lists", _csr(np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), n)
+    mean_r = float(np.mean(tree.query_ball_point(probe, rr, return_length=True)))
+    return ("capped" if mean_r >= cap else "tree"), None
+
+
+def _tree_counts(tree, X, rr):
+    return np.asarray(tree.query_ball_point(X, rr, return_length=True, workers=-1), dtype=np.int64)
 
 
 def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
@@ -186,9 +197,9 @@ def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
     rr = r * 1.0000001
     A, anchor = _augment(E, X, np.asarray(parent, dtype=np.int64), rr, flip_dims)
     tree = cKDTree(A)
-    lists = _pair_lists(tree, len(A), rr, len(X))
-    if lists is None:
-        return _capped(A, X, rr * rr, len(A) + 1)
+    how, lists = _plan(tree, len(A), rr, len(X), np.inf)
+    if how != "lists":
+        return _tree_counts(tree, X, rr)
     return _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
 
 
@@ -221,16 +232,19 @@ def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, m
     rr = r * 1.0000001
     A, anchor = _augment(E, X, parent, rr, flip_dims)
     tree = cKDTree(A)
-    lists = _pair_lists(tree, len(A), rr, len(X))
-    if lists is not None:
-        cnt = _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+    how, lists = _plan(tree, len(A), rr, len(X), cap)
+    if how != "capped":
+        if how == "lists":
+            cnt = _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+        else:
+            cnt = _tree_counts(tree, X, rr)
         out[idx] = u * np.maximum(cnt, 1) < 1.0
         return out
     cnt = np.maximum(_capped(A, X, rr * rr, cap), 1)
     keep = u * cnt < 1.0
     sat = np.flatnonzero(keep & (cnt >= cap))
     if len(sat):
-        full = _capped(A, X[sat], rr * rr, len(A) + 1)
+        full = _tree_counts(tree, X[sat], rr)
         keep[sat] = rng.random(len(sat)) * full < cap
     out[idx] = keep
     return out
