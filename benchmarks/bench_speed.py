@@ -136,18 +136,18 @@ def _cover(m, cube, k, seed):
         return out
 
     pairs = [0]
-    costs = m.contact_costs
+    costs = m._contact_costs
 
-    def counted(X, contacts, **kw):
+    def counted(X, contacts, *args, **kw):
         pairs[0] += len(X) * len(contacts)
-        return costs(X, contacts, **kw)
+        return costs(X, contacts, *args, **kw)
 
     ss._even_density_cover = timed
-    m.contact_costs = counted
+    m._contact_costs = counted
     try:
         b = ss.localize(c, cube)
     finally:
-        del m.contact_costs
+        del m._contact_costs
     spent["pairs_fraction"] = pairs[0] / (b.info["evaluations"] * len(c))
     return spent
 

@@ -209,10 +209,10 @@ class ScalingSeries:
             idx = rng.choice(idx, n_target, replace=False)
         return cand[idx], volume
 
-    def _annealed_loglik(self, X, contacts, tau: float):
-        """log p(contacts | X) / tau for one intermediate scale, evaluated contact group by
-        contact group, with the particles that the threshold prune will drop whatever their
-        other contacts say left unfinished.
+    def _annealed_loglik(self, X, contacts, tau: float, prune: bool = True):
+        """log p(contacts | X) / tau for one scale. With ``prune`` (intermediate scales),
+        evaluated contact group by contact group, with the particles that the threshold
+        prune will drop whatever their other contacts say left unfinished.
 
         Costs are non-negative, so a particle whose partial cost already exceeds the full
         cost of the best particle by 2 tau log(1 / prune_ratio) is pruned. The best
@@ -222,23 +222,26 @@ class ScalingSeries:
         """
         model = self.model
         K, N = len(contacts), len(X)
-        if (self.prune != "threshold" or K < 4 or N < 2000 or not isinstance(model, ProximityModel)
-                or type(model).log_likelihood is not ProximityModel.log_likelihood):
+        if not isinstance(model, ProximityModel) or type(model).log_likelihood is not ProximityModel.log_likelihood:
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
+        # the particles are this estimator's own (4, 4) rigid poses: no re-validation
+        costs = model._contact_costs
         method = model.method
         if method == "auto":  # as one call over every pair would choose
             method = "fast" if N * K >= AUTO_FAST_PAIRS else "exact"
+        if not prune or self.prune != "threshold" or K < 4 or N < 2000:
+            return finite_loglik(-0.5 * costs(X, contacts, method).sum(axis=1) / tau)
         groups = np.array_split(np.arange(K), 4)
-        cost = model.contact_costs(X, contacts[groups[0]], method=method).sum(axis=1)
+        cost = costs(X, contacts[groups[0]], method).sum(axis=1)
         rest = np.concatenate(groups[1:])
         best = np.argsort(cost)[:32]
-        upper = float(np.min(cost[best] + model.contact_costs(X[best], contacts[rest], method=method).sum(axis=1)))
+        upper = float(np.min(cost[best] + costs(X[best], contacts[rest], method).sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
         alive = np.flatnonzero(cost <= limit)
         for g in groups[1:]:
             if len(alive) == 0:
                 break
-            cost[alive] += model.contact_costs(X[alive], contacts[g], method=method).sum(axis=1)
+            cost[alive] += costs(X[alive], contacts[g], method).sum(axis=1)
             alive = alive[cost[alive] <= limit]
         return finite_loglik(-0.5 * cost / tau)
 
@@ -318,10 +321,7 @@ class ScalingSeries:
                 first = False  # the initial uniform draw is the cover of V0
             else:
                 X, volume = self._even_density_cover(region, X, delta, new_delta)
-            if last:
-                ll = finite_loglik(self.model.log_likelihood(X, contacts, temperature=tau))
-            else:
-                ll = self._annealed_loglik(X, contacts, tau)
+            ll = self._annealed_loglik(X, contacts, tau, prune=not last)
             lw = ll.copy()
             if last and log_prior is not None:
                 lw = lw + log_prior(X)

@@ -170,8 +170,11 @@ class ProximityModel(MeasurementModel):
         -------
         (N, K) float
         """
-        poses = as_poses(poses)
-        contacts = _check_contacts(contacts)
+        return self._contact_costs(as_poses(poses), _check_contacts(contacts), method)
+
+    def _contact_costs(self, poses, contacts, method=None):
+        """:meth:`contact_costs` for poses and contacts an estimator has already checked
+        (its own particles): no validation of the (N, 4, 4) batch."""
         P, Nrm = _to_object_frame(poses, contacts)
         use_n = Nrm is not None and self.sigma_nor is not None
         c = self.query_costs(P.reshape(-1, 3), Nrm.reshape(-1, 3) if use_n else None, method=method)
