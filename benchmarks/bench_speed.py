@@ -32,17 +32,17 @@ BASELINE = "f4e652e"
 ROOT = Path(__file__).resolve().parent.parent
 #: meshes whose profile guided the work, and meshes held out from it
 TUNED = ["mug", "milk"]
-NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts): about t'
-        'wo thirds in the cover step, nearly all of it KD-tree ball counting; a tenth in '
-        'the likelihood; a tenth in re-validating (4, 4) batches and converting rotations'
-        '. Since then: the cover compares each draw only with the 2-delta neighbours of t'
-        'he ball it was drawn from, in a compiled loop, and keeps draws as quaternions un'
-        'til they are chosen (second table); Scaling Series scores its own particles with'
-        'out re-validating them, and intermediate scales stop evaluating a particle once '
-        'the prune is sure to drop it (last column of the second table); the nearest-face'
-        ' queries skip faces on their normal term alone (third table). The likelihood is '
-        'now the larger share of the time, and the fast method stays near 2.5x exact clos'
-        'e to the object and 1x far from it.')
+NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts): about two '
+        'thirds in the cover step, nearly all of it KD-tree ball counting; a tenth in the '
+        'likelihood; a tenth in re-validating (4, 4) batches and converting rotations. Since '
+        'then: the cover compares each draw only with the 2-delta neighbours of the ball it '
+        'was drawn from, in a compiled loop, and keeps draws as quaternions until they are '
+        'chosen (second table); Scaling Series scores its own particles without re-validating'
+        ' them, and intermediate scales stop evaluating a particle once the prune is sure to '
+        'drop it (last column of the second table); the nearest-face queries skip faces on '
+        'their normal term alone (third table). The likelihood is now the larger share of the'
+        ' time, and the fast method stays near 2.5x exact close to the object and 1x far from'
+        ' it.')
 HELD_OUT = ["can", "lemon", "bread", "cereal"]
 
 
