@@ -222,7 +222,8 @@ class ScalingSeries:
         """
         model = self.model
         K, N = len(contacts), len(X)
-        if not isinstance(model, ProximityModel) or type(model).log_likelihood is not ProximityModel.log_likelihood:
+        if (not isinstance(model, ProximityModel) or type(model).log_likelihood is not ProximityModel.log_likelihood
+                or type(model).contact_costs is not ProximityModel.contact_costs):
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
         costs = model._contact_costs
