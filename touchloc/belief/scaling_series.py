@@ -158,21 +158,31 @@ class ScalingSeries:
         dim = region.dim
         rng = self.rng
         n_c = len(centers)
-        per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
-        total = min(n_c * per, 4 * self.max_particles)
-        pick = rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+        pick = self._pick_centres(n_c, dim, delta_prev, delta)
         draws = _Draws(region, centers, pick, delta_prev, rng)
         keep = accept_draws(draws.centres_emb, draws.emb, pick, delta_prev, rng, mask=draws.inside,
                             flip_dims=4 if region.rotation == "full" else 0)
-        acc = keep.mean()
-        volume = n_c * ball_volume(dim, delta_prev) * acc
+        idx, volume = self._thin(keep, n_c, dim, delta_prev, delta)
+        if idx is None:  # every draw fell outside the region: keep the centres
+            return centers.copy(), volume
+        return draws.poses(idx), volume
+
+    def _pick_centres(self, n_c, dim, delta_prev, delta):
+        """Which centre each draw comes from: m draws per new ball's share of the old one."""
+        per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
+        total = min(n_c * per, 4 * self.max_particles)
+        return self.rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+
+    def _thin(self, keep, n_c, dim, delta_prev, delta):
+        """The union's volume from the acceptance rate, and at most m per new ball of the kept draws."""
+        volume = n_c * ball_volume(dim, delta_prev) * keep.mean()
         n_target = int(np.clip(round(self.m * volume / ball_volume(dim, delta)), 1, self.max_particles))
         idx = np.flatnonzero(keep)
-        if len(idx) == 0:  # every draw fell outside the region: keep the centres
-            return centers.copy(), volume
+        if len(idx) == 0:
+            return None, volume
         if len(idx) > n_target:
-            idx = rng.choice(idx, n_target, replace=False)
-        return draws.poses(idx), volume
+            idx = self.rng.choice(idx, n_target, replace=False)
+        return idx, volume
 
     def _even_density_cover_reference(self, region: PoseRegion, centers, delta_prev: float, delta: float):
         """The cover as first written (one KD-tree query per candidate), kept as the
@@ -185,9 +195,7 @@ class ScalingSeries:
         dim = region.dim
         rng = self.rng
         n_c = len(centers)
-        per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
-        total = min(n_c * per, 4 * self.max_particles)
-        pick = rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+        pick = self._pick_centres(n_c, dim, delta_prev, delta)
         cand = region.perturb(centers[pick], delta_prev, rng=rng, ball=True)
         inside = region.contains(cand)
         emb_c = region.embed(centers)
@@ -199,14 +207,9 @@ class ScalingSeries:
             count = count + tree.query_ball_point(flip, r=delta_prev * 1.0000001, return_length=True)
         count = np.maximum(count, 1)
         keep = inside & (rng.random(len(cand)) < 1.0 / count)
-        acc = keep.mean()
-        volume = n_c * ball_volume(dim, delta_prev) * acc
-        n_target = int(np.clip(round(self.m * volume / ball_volume(dim, delta)), 1, self.max_particles))
-        idx = np.flatnonzero(keep)
-        if len(idx) == 0:  # every draw fell outside the region: keep the centres
+        idx, volume = self._thin(keep, n_c, dim, delta_prev, delta)
+        if idx is None:  # every draw fell outside the region: keep the centres
             return centers.copy(), volume
-        if len(idx) > n_target:
-            idx = rng.choice(idx, n_target, replace=False)
         return cand[idx], volume
 
     def _annealed_loglik(self, X, contacts, tau: float, prune: bool = True):
