@@ -50,14 +50,9 @@ HELD_OUT = ["can", "lemon", "bread", "cereal"]
 
 # -- worker side -------------------------------------------------------------------------
 def _trial(obj, region, k, seed):
-    from touchloc.models import Contacts
+    from bench_localization import trial  # the localisation benchmark's trials (2 mm / 5 deg)
 
-    rng = np.random.default_rng(seed)
-    true = region.sample(1, rng=rng)[0]
-    p, n, _ = obj.sample_surface(k, rng=rng)
-    p = p + rng.normal(scale=0.002, size=p.shape)
-    n = n + rng.normal(scale=np.radians(5) / np.sqrt(2), size=n.shape)
-    return true, Contacts(p, n).transform(true)
+    return trial(obj, region, k, seed)
 
 
 def worker() -> int:
