@@ -177,6 +177,25 @@ class FreeSpaceModel(FreeSpaceBase):
         return lp.sum(axis=1) / T
 
 
+def probe_rays(O, D, rad):
+    """The rays that stand for probes of radius ``rad`` moving from ``O`` along ``D``.
+
+    A point probe is its own ray; a spherical one adds 16 parallel rays through its
+    cross-section (:func:`_ray_offsets`). Returns the rays' origins (M, 3), directions
+    (M, 3), the probe each belongs to (M,) and how far each ray's hit lies behind the
+    sphere's leading point along the direction (M,): the probe stops that much earlier.
+    """
+    F = len(O)
+    ray_o, ray_d, ray_f, ray_back = [O], [D], [np.arange(F)], [np.asarray(rad, float).copy()]
+    for j in np.flatnonzero(rad > 0):
+        offs, r = _ray_offsets(D[j], rad[j])
+        ray_o.append(O[j] + offs[1:])
+        ray_d.append(np.repeat(D[j][None], len(offs) - 1, axis=0))
+        ray_f.append(np.full(len(offs) - 1, j))
+        ray_back.append(np.sqrt(np.maximum(rad[j] ** 2 - r[1:] ** 2, 0.0)))
+    return np.concatenate(ray_o), np.concatenate(ray_d), np.concatenate(ray_f), np.concatenate(ray_back)
+
+
 def _ray_offsets(direction, radius):
     """(R, 3) offsets perpendicular to ``direction`` and (R,) their lengths."""
     d = direction / np.linalg.norm(direction)
@@ -228,15 +247,7 @@ def ray_stops(obj: MeshObject, poses, origins, directions, probe_radius=0.0) -> 
     rad = _per_ray(probe_radius, "probe_radius (m)", F)
     if not (np.all(np.isfinite(rad)) and np.all(rad >= 0) and np.all(rad <= 1.0)):
         raise ValidationError("probe_radius must be finite and in [0, 1] m (a fingertip)")
-    ray_o, ray_d, ray_f, ray_back = [O], [D], [np.arange(F)], [rad.copy()]
-    for j in np.flatnonzero(rad > 0):
-        offs, r = _ray_offsets(D[j], rad[j])
-        ray_o.append(O[j] + offs[1:])
-        ray_d.append(np.repeat(D[j][None], len(offs) - 1, axis=0))
-        ray_f.append(np.full(len(offs) - 1, j))
-        ray_back.append(np.sqrt(np.maximum(rad[j] ** 2 - r[1:] ** 2, 0.0)))
-    RO, RD = np.concatenate(ray_o), np.concatenate(ray_d)
-    RF, RB = np.concatenate(ray_f), np.concatenate(ray_back)
+    RO, RD, RF, RB = probe_rays(O, D, rad)
     R, t = T[:, :3, :3], T[:, :3, 3]
     lo = (RO[None, :, :] - t[:, None, :]) @ R    # (P, M, 3): R^T (o - t) per pose
     ld = RD[None, :, :] @ R

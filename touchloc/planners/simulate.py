@@ -9,7 +9,7 @@ import numpy as np
 from .._util import as_poses
 from ..errors import ValidationError
 from ..models import Contacts, MeshObject
-from ..models.freespace import _ray_offsets  # one definition of the 17-ray probe sphere
+from ..models.freespace import probe_rays  # one definition of the 17-ray probe sphere
 from .actions import GuardedTouch, TouchResult, fingers_of
 
 __all__ = ["Outcomes", "simulate", "flatten_actions", "execute"]
@@ -104,16 +104,7 @@ def simulate(obj: MeshObject, poses, actions) -> Outcomes:
     maxt = np.array([f.max_travel for f in fingers])
     rad = np.array([f.probe_radius for f in fingers])
     # rays per finger: one for point probes, 17 for spheres
-    ray_o, ray_d, ray_f, ray_back = [O], [D], [np.arange(F)], [np.zeros(F)]
-    for j in np.flatnonzero(rad > 0):
-        offs, r = _ray_offsets(D[j], rad[j])
-        ray_o.append(O[j] + offs[1:])
-        ray_d.append(np.repeat(D[j][None], len(offs) - 1, axis=0))
-        ray_f.append(np.full(len(offs) - 1, j))
-        ray_back.append(np.sqrt(np.maximum(rad[j] ** 2 - r[1:] ** 2, 0.0)))
-    ray_back[0] = rad.copy()
-    RO, RD = np.concatenate(ray_o), np.concatenate(ray_d)
-    RF, RB = np.concatenate(ray_f), np.concatenate(ray_back)
+    RO, RD, RF, RB = probe_rays(O, D, rad)
     R, t = T[:, :3, :3], T[:, :3, 3]
     lo = (RO[None, :, :] - t[:, None, :]) @ R    # (P, M, 3): R^T (o - t) per pose
     ld = RD[None, :, :] @ R
