@@ -133,10 +133,7 @@ class GPIS:
         # L^-1 of the bordered factor: [[Li, 0], [-L2^-1 W^T Li, L2^-1]]; diag(K^-1) = column norms^2
         n, k = self.n, len(y)
         L2i = solve_triangular(L2, np.eye(k), lower=True, check_finite=False)
-        if n + k > self._Lib.shape[0]:
-            buf = np.zeros((max(n + k, 2 * self._Lib.shape[0]),) * 2)
-            buf[:n, :n] = self._Lib[:n, :n]
-            self._Lib = buf
+        self._Lib = _grown(self._Lib, n + k, n + k, n, n)
         if n:
             left = -(L2i @ (W.T @ self._Lib[:n, :n]))
             self._Lib[n:n + k, :n] = left
@@ -186,13 +183,7 @@ class GPIS:
         return self._Vb[:self.n, :len(self.Q)]
 
     def _reserve(self, rows, cols) -> None:
-        """Grow the buffer of V geometrically, so that appending costs no copy of V."""
-        r0, c0 = self._Vb.shape
-        if rows <= r0 and cols <= c0:
-            return
-        buf = np.empty((max(rows, r0 + r0 // 2 if rows > r0 else r0), max(cols, c0 + c0 // 2 if cols > c0 else c0)))
-        buf[:min(r0, self.n), :min(c0, len(self.Q))] = self._Vb[:self.n, :len(self.Q)]
-        self._Vb = buf
+        self._Vb = _grown(self._Vb, rows, cols, self.n, len(self.Q))
 
     def track(self, Q) -> None:
         """Add query points whose posterior mean :meth:`tracked_mean` keeps up to date."""
@@ -295,6 +286,17 @@ class GPIS:
             V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
             var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
         return m + mu, np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
+
+
+def _grown(buf, rows, cols, used_rows, used_cols):
+    """``buf`` with room for (rows, cols), grown geometrically so that appending blocks
+    costs no copy of the used [:used_rows, :used_cols] part most of the time."""
+    r0, c0 = buf.shape
+    if rows <= r0 and cols <= c0:
+        return buf
+    out = np.zeros((max(rows, r0 + r0 // 2 if rows > r0 else r0), max(cols, c0 + c0 // 2 if cols > c0 else c0)))
+    out[:min(r0, used_rows), :min(c0, used_cols)] = buf[:used_rows, :used_cols]
+    return out
 
 
 def _chol(A):
