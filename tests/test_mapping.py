@@ -68,6 +68,36 @@ def test_tracked_free_space_mean_matches_the_direct_mean(sphere):
     assert np.allclose(gp.tracked_mean(), gp.mean(smap._free), atol=1e-9)
 
 
+def test_tracked_free_space_std_matches_the_direct_std(sphere):
+    res = _touches(sphere, 20, 5)
+    smap = ShapeMap(_bounds(sphere)).update(res)
+    gp = smap._gp
+    for calibrated in (True, False):
+        assert np.allclose(gp.tracked_std(calibrated=calibrated),
+                           gp.mean_std(smap._free, calibrated=calibrated)[1], atol=1e-12)
+
+
+@pytest.mark.parametrize("mu", [-4.0, -1.0, 0.0, 0.7, 2.5])
+def test_free_space_bound_site_matches_the_truncated_gaussian(mu):
+    # cavity N(mu, sd^2) times the site must have the moments of the cavity cut to f >= c
+    from scipy.stats import truncnorm
+
+    from touchloc.mapping.gpis import bound_site
+
+    sd, c = 0.8, 0.3
+    val, var = bound_site(np.array([mu]), np.array([sd]), c)
+    post_var = 1.0 / (1.0 / sd**2 + 1.0 / var[0])
+    post_mean = post_var * (mu / sd**2 + val[0] / var[0])
+    t = truncnorm((c - mu) / sd, np.inf, loc=mu, scale=sd)
+    assert np.isclose(post_mean, t.mean(), rtol=1e-6, atol=1e-9)
+    assert np.isclose(post_var, t.var(), rtol=1e-5)
+    # a bound the belief breaks gives a sharp site near c; one it keeps gives a weak site
+    if mu < c - 2 * sd:
+        assert abs(val[0] - c) < 0.5 * sd and var[0] < 0.1 * sd**2
+    if mu > c + 2 * sd:
+        assert var[0] > 10 * sd**2
+
+
 def test_leave_one_out_scale_calibrates_the_band_on_sharp_edges():
     # a box: the smooth kernel cannot follow its edges, so the sensor-noise band is too narrow
     box = _quiet(trimesh.creation.box((0.12, 0.06, 0.03)), "box")

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import cho_solve, solve_triangular
+from scipy.special import log_ndtr
 
 from ..errors import TouchlocError
 
@@ -211,6 +212,16 @@ class GPIS:
                                        check_finite=False)
         return m + self._V.T @ self._z
 
+    def tracked_std(self, *, calibrated: bool = True) -> np.ndarray:
+        """(len(Q),) posterior standard deviation at the tracked points: equal to
+        ``mean_std(Q, calibrated=calibrated)[1]``."""
+        var = np.full(len(self.Q), self.s2)
+        if self.n and len(self.Q):
+            V = self._V
+            var = self.s2 - np.einsum("ij,ij->j", V, V)
+        lam = self.scale if calibrated else 1.0
+        return np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
+
     @property
     def alpha(self) -> np.ndarray:
         if self._alpha is None:
@@ -286,6 +297,38 @@ class GPIS:
             V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
             var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
         return m + mu, np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
+
+
+def bound_site(mu, sd, c, *, floor: float = 0.0):
+    """Gaussian stand-in for the bound f(x) >= c, given the map's belief N(mu, sd^2) at x.
+
+    Moment matching (assumed-density filtering, one expectation-propagation step): the
+    site N(value, var) is the Gaussian that, multiplied by N(mu, sd^2), has the mean and
+    variance of N(mu, sd^2) truncated to f >= c. A bound the map already keeps gives a
+    weak site (large var); one it breaks badly gives value ~ c with small var.
+
+    Parameters
+    ----------
+    mu, sd : (M,) float
+        The map's mean and standard deviation at the points, before the bound.
+    c : float or (M,) float
+    floor : float
+        Smallest site variance (keeps the kernel matrix well conditioned).
+
+    Returns
+    -------
+    value, var : (M,) float
+    """
+    mu, sd = np.asarray(mu, float), np.asarray(sd, float)
+    v = sd * sd
+    z = (mu - c) / sd
+    r = np.exp(-0.5 * z * z - 0.5 * np.log(2 * np.pi) - log_ndtr(z))   # phi(z) / Phi(z)
+    m_hat = mu + sd * r
+    shrink = np.clip(1.0 - r * (z + r), 1e-9, 1.0 - 1e-9)                # v_hat / v
+    v_hat = v * shrink
+    tau = 1.0 / v_hat - 1.0 / v                                          # site precision
+    value = (m_hat / v_hat - mu / v) / tau
+    return value, np.maximum(1.0 / tau, floor)
 
 
 def _grown(buf, rows, cols, used_rows, used_cols):

@@ -13,7 +13,7 @@ import trimesh
 from .._util import as_points
 from .._validate import as_bool
 from ..errors import MappingError, ValidationError
-from .gpis import GPIS
+from .gpis import GPIS, bound_site
 from .occupancy import OccupancyGrid
 
 __all__ = ["ShapeMap", "as_bounds", "sphere_prior"]
@@ -106,9 +106,10 @@ class ShapeMap:
     Notes
     -----
     Updates are incremental: the GPIS appends rows to its Cholesky factor, the voxel map
-    adds log-odds. Free space enters the GPIS as value observations f(x) = c > 0 at swept
-    points where the current mean puts x inside the object (an active set, so only
-    informative points cost anything).
+    adds log-odds. Free space enters the GPIS as bounds f(x) >= c > 0 at swept points,
+    each a moment-matched Gaussian site, added only where the current map gives the bound
+    a fair chance of being broken (an active set, so only informative points cost
+    anything).
     """
 
     def __init__(self, bounds, *, method: str = "gpis", sigma_pos: float = 0.001, sigma_nor: float = 0.1,
@@ -270,29 +271,33 @@ class ShapeMap:
             self._gp.track(np.concatenate(new))
 
     _MAX_POOL = 4000
+    _FREE_Z = -1.0   # a swept point becomes a bound once the map gives it P(f < c) > Phi(-1) = 16 %
 
     def _activate_free(self, rounds: int = 2, per_round: int = 64):
-        """Add free-space observations where the mean says "inside" (most violated first).
+        """Add free-space bounds f(x) >= c where the map doubts them (most doubted first).
 
-        Only a contradiction is corrected: f(x) = c is a lower bound in truth (a swept
-        point may lie far from the surface), so observing it where the map already agrees
-        would pull the surface towards the swept path. (Tried: activating wherever
-        mean - 2 sd < c made random-touch maps of the cereal box 2.5x worse.)
+        A swept point says only that the surface is at least c away, so each becomes a
+        moment-matched Gaussian site (:func:`gpis.bound_site`): a bound the map breaks
+        pulls the mean up to about c with confidence, one it nearly keeps adds a weak push.
+        (Observing f(x) = c outright, the earlier rule, pulls the surface towards swept
+        paths that pass far from the object: made random-touch maps of the cereal box 2.5x
+        worse when applied beyond outright contradictions, and of the bread 13-27 % worse
+        at 20-100 touches even when limited to them.)
         """
         for _ in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
                 break
-            mu = self._gp.tracked_mean()
-            viol = self._free_c - mu
-            idx = np.flatnonzero(viol > 0)
+            mu, sd = self._gp.tracked_mean(), self._gp.tracked_std()
+            viol = (self._free_c - mu) / sd
+            idx = np.flatnonzero(viol > self._FREE_Z)
             if len(idx) == 0:
                 break
             idx = idx[np.argsort(-viol[idx])][:per_round]
-            # keep activated points apart (half a length scale) so the kernel matrix stays well conditioned
+            # keep activated points a quarter length scale apart so the kernel matrix stays well conditioned
             chosen = _spread(self._free[idx], 0.25 * self.lengthscale)
             idx = idx[chosen]
-            self._gp.add(self._free[idx], np.full(len(idx), -1), self._free_c[idx],
-                         np.full(len(idx), (2.0 * self.sigma_pos) ** 2), scored=False)
+            val, var = bound_site(mu[idx], sd[idx], self._free_c[idx], floor=(2.0 * self.sigma_pos) ** 2)
+            self._gp.add(self._free[idx], np.full(len(idx), -1), val, var, scored=False)
             keep = np.ones(len(self._free), bool)
             keep[idx] = False
             self._drop_free(keep)
