@@ -98,6 +98,42 @@ def test_free_space_bound_site_matches_the_truncated_gaussian(mu):
         assert var[0] > 10 * sd**2
 
 
+def test_each_contact_is_predicted_before_it_is_added():
+    # the prequential record: every contact after the first touch, scored against the map
+    # of the touches before it, whether the touches arrive one by one or in one batch
+    box = _quiet(trimesh.creation.box((0.12, 0.06, 0.03)), "box")
+    res = _touches(box, 12, 6)
+    one_by_one, z2 = ShapeMap(_bounds(box), free_space=False), []
+    for r in res:
+        if one_by_one._gp.n and r.contact is not None:
+            mu, sd = one_by_one._gp.mean_std(r.contact.points, calibrated=False)
+            z2 += list(mu**2 / (sd**2 + one_by_one.sigma_pos**2))
+        one_by_one.update([r])
+    batch = ShapeMap(_bounds(box), free_space=False).update(res)
+    for m in (one_by_one, batch):
+        total, count = m._gp._preq
+        assert count == len(z2) == sum(r.contact is not None for r in res[1:])
+        assert np.isclose(total, np.sum(z2), rtol=1e-6)
+        assert m._gp.scale >= np.mean(z2) - 1e-9
+
+
+def test_prequential_scale_widens_the_band_between_sparse_touches():
+    # 15 touches on a box: the fit at the contacts (leave-one-out) looks fine, but the map
+    # is wrong between them; the one-step-ahead errors see it
+    box = _quiet(trimesh.creation.box((0.12, 0.06, 0.03)), "box")
+    smap = ShapeMap(_bounds(box)).update(_touches(box, 15, 3))
+    gp = smap._gp
+    a = gp.alpha[gp.scored]
+    loo = max(1.0, float(np.mean(a * a / gp._dKi[gp.scored])))
+    assert gp.scale > 2 * loo
+    truth, _, _ = box.sample_surface(3000, rng=4)
+    mu, sd = smap.mean_std(truth)
+    _, raw = gp.mean_std(truth, calibrated=False)
+    held = np.mean(np.abs(mu) <= 2 * sd)
+    held_loo = np.mean(np.abs(mu) <= 2 * np.sqrt(np.minimum(loo * raw**2, gp.s2)))
+    assert held > held_loo + 0.1
+
+
 def test_leave_one_out_scale_calibrates_the_band_on_sharp_edges():
     # a box: the smooth kernel cannot follow its edges, so the sensor-noise band is too narrow
     box = _quiet(trimesh.creation.box((0.12, 0.06, 0.03)), "box")

@@ -9,7 +9,16 @@ with a parametric prior mean m (a signed distance to a sphere or a superquadric 
 the data). A contact (p, n) gives two observations: f(p) = 0 (value) and grad f(p) = n
 (gradient), the second through the derivatives of the kernel (Solak et al., "Derivative
 observations in Gaussian process models of dynamic systems", NIPS 2003). Free space gives
-value observations f(x) = c > 0 where the current mean would put x inside the object.
+bounds f(x) >= c > 0, each entered as a moment-matched Gaussian site (:func:`bound_site`).
+
+The covariance is calibrated by a scale lambda >= 1 (:attr:`GPIS.scale`), the larger of
+two estimates of how much the data's errors exceed the model's variance: the leave-one-out
+estimate over the contact rows (Rasmussen & Williams, *Gaussian Processes for Machine
+Learning*, 2006, sec. 5.4.2), which sees the local fit, and the prequential one (Dawid,
+"Present position and potential developments: some personal views", JRSS A 147, 1984):
+the mean squared standardised error of each contact predicted before it was added
+(:meth:`GPIS.score_prediction`), which sees the fit between touches, where a sparse map
+is most wrong.
 
 Observations are kept as scalar rows: a point, a kind (-1 for a value, 0/1/2 for a
 component of the gradient) and a noise variance. Adding a block of k rows to n extends
@@ -67,6 +76,7 @@ class GPIS:
         self._Lib = np.zeros((0, 0))     # buffer whose [:n, :n] block is L^-1
         self._dKi = np.zeros(0)          # diag(K^-1)
         self._scale = None
+        self._preq = [0.0, 0]            # sum of squared standardised one-step-ahead errors, count
 
     # -- kernel ----------------------------------------------------------------------
     def kernel(self, X1, k1, X2, k2) -> np.ndarray:
@@ -163,15 +173,35 @@ class GPIS:
 
     @property
     def scale(self) -> float:
-        """lambda >= 1: the leave-one-out variance scale (see the module notes)."""
+        """lambda >= 1: the variance scale (see the module notes)."""
         if self._scale is None:
             sel = self.scored
-            if np.count_nonzero(sel) < 2:
-                self._scale = 1.0
-            else:
+            loo = 1.0
+            if np.count_nonzero(sel) >= 2:
                 a = self.alpha[sel]
-                self._scale = max(1.0, float(np.mean(a * a / self._dKi[sel])))
+                loo = float(np.mean(a * a / self._dKi[sel]))
+            total, count = self._preq
+            self._scale = max(1.0, loo, total / count if count else 1.0)
         return self._scale
+
+    def score_prediction(self, X, y, noise) -> None:
+        """Record how well the current map predicts value observations about to be added.
+
+        Parameters
+        ----------
+        X : (k, 3) float
+        y : (k,) float
+            The values that will be observed there (0 for contacts).
+        noise : (k,) float
+            Their noise variances.
+        """
+        if self.n == 0 or len(X) == 0:
+            return
+        mu, sd = self.mean_std(X, calibrated=False)
+        z2 = (np.asarray(y, float) - mu) ** 2 / (sd * sd + np.asarray(noise, float))
+        self._preq[0] += float(np.sum(z2))
+        self._preq[1] += len(z2)
+        self._scale = None
 
     # -- tracked query points ------------------------------------------------------------
     def _columns(self, Q) -> np.ndarray:

@@ -192,12 +192,12 @@ class ShapeMap:
         N = np.concatenate([n for n in nrm if n is not None]) if (nrm and self._has_normals) else None
         self.results.extend(results)
         self.batches.append(len(results))
-        self._pts = np.concatenate([self._pts, P])
-        if N is not None:
-            self._nrm = np.concatenate([self._nrm, N])
         if self.method == "gpis":
-            self._update_gpis(P, N, seg)
+            self._update_gpis(list(zip(pts, nrm if N is not None else [None] * len(pts))), seg)
         else:
+            self._pts = np.concatenate([self._pts, P])
+            if N is not None:
+                self._nrm = np.concatenate([self._nrm, N])
             self._grid.add_contacts(P, N)
             if self.free_space and seg:
                 S, E, R, H = (np.array(v) for v in zip(*seg))
@@ -229,10 +229,18 @@ class ShapeMap:
         c, r = _fit_sphere(self._pts, self._nrm if self._has_normals else None, self.lo, self.hi)
         return sphere_prior(c, r)
 
-    def _update_gpis(self, P, N, seg):
+    def _update_gpis(self, blocks, seg):
+        """Add each touch's contacts in turn, each predicted by the map of the touches
+        before it (the prequential calibration), then the free space of all of them."""
         gp = self._gp
-        if len(P):
+        cheap_prior = self.prior != "superquadric"
+        for j, (P, N) in enumerate(blocks):
             K = len(P)
+            self._pts = np.concatenate([self._pts, P])
+            if N is not None:
+                self._nrm = np.concatenate([self._nrm, N])
+            if K == 0:
+                continue
             X = [P]
             kind = [np.full(K, -1)]
             y = [np.zeros(K)]
@@ -242,8 +250,10 @@ class ShapeMap:
                 kind.append(np.tile(np.arange(3), K))
                 y.append(N.reshape(-1))
                 noise.append(np.full(3 * K, self.sigma_nor**2))
+            gp.score_prediction(P, y[0], noise[0])
             gp.add(np.concatenate(X), np.concatenate(kind), np.concatenate(y), np.concatenate(noise))
-            gp.set_prior(self._make_prior())
+            if cheap_prior or j == len(blocks) - 1:
+                gp.set_prior(self._make_prior())
         if self.free_space and seg:
             self._add_free_points(seg)
             self._activate_free()
