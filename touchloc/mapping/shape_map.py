@@ -356,12 +356,17 @@ class ShapeMap:
         p = self._grid.probability(P)
         return np.sqrt(p * (1 - p))
 
-    def mean_std(self, points):
-        """(M,) mean implicit function and (M,) its standard deviation (GPIS only)."""
+    def mean_std(self, points, *, calibrated: bool = True):
+        """(M,) mean implicit function and (M,) its standard deviation.
+
+        ``calibrated=False`` (GPIS only) leaves out the map's variance scale: the variance
+        under the sensor's own noise model.
+        """
         P = as_points(points, "points", allow_empty=True)
+        calibrated = as_bool(calibrated, "calibrated")
         if self.method != "gpis":
             return self.signed_distance(P), self.surface_std(P)
-        return self._gp.mean_std(P)
+        return self._gp.mean_std(P, calibrated=calibrated)
 
     def grid(self, resolution: int | None = None):
         """The mean implicit function sampled on a grid over the bounds.
