@@ -45,7 +45,7 @@ def test_slam_follows_a_pushed_object_where_a_static_map_smears(milk):
 def test_odometry_is_used_and_its_bias_corrected(milk):
     kw = dict(push=(0.0, 0.0), inhand=True, step=np.deg2rad(15.0), bias=0.05)
     errs = []
-    for seed in (2, 3, 4):
+    for seed in (2, 3, 4, 5, 6):
         world = MovingWorld(milk, rng=seed, **kw)
         slam = TactileSLAM(_box(milk, 0.03), motion=(0.0005, np.deg2rad(0.5)),
                            odometry_noise=(0.0005, np.deg2rad(1.5)), sigma_pos=0.001, sigma_nor=0.087, rng=0)
@@ -54,7 +54,7 @@ def test_odometry_is_used_and_its_bias_corrected(milk):
         errs.append(np.degrees(np.arccos(np.clip((np.trace(R_est.T @ R_true) - 1) / 2, -1, 1))))
         assert world.odometry() is not None
     # integrating the biased odometry alone is off by 24 x 0.75 deg = 18 deg after one turn;
-    # single runs scatter (4-20 deg over seeds 2-7), so the claim is on the median of three
+    # single runs scatter (4-16 deg over seeds 2-7), so the claim is on the median of five
     assert np.median(errs) < 12.0
 
 
