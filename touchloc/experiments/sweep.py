@@ -12,13 +12,19 @@ from pathlib import Path
 from .._validate import as_count, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
-__all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "trial_id"]
+__all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "MODES", "LOOP_OPTIONS", "trial_id", "bundled_sweeps"]
 
 #: estimator names a passive trial accepts (see touchloc.experiments.trial)
 ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "smc", "ss+mcmc")
 #: planner names an active trial accepts
 PLANNERS = ("one-step", "two-step", "random")
+#: trial kinds: localise from given contacts, localise by planned touches, tell which mesh was touched
+MODES = ("passive", "active", "identify")
 REGIONS = ("full", "planar")
+#: half-extent (m) of the pose region when the sweep does not give one
+DEFAULT_HALF_EXTENT = {"full": 0.2, "planar": 0.05}
+#: keyword arguments of touchloc.planners.loop.active_localization an active sweep may set
+LOOP_OPTIONS = ("n_particles", "stop_error", "stop_probability", "stop_metric", "confidence", "min_touches")
 
 
 def trial_id(params: dict) -> str:
@@ -30,6 +36,12 @@ def trial_id(params: dict) -> str:
     except (TypeError, ValueError) as exc:
         raise ValidationError(f"params must hold plain JSON values (str, numbers, lists, dicts): {exc}") from None
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
+
+
+def bundled_sweeps() -> dict:
+    """{name: path} of the sweep files shipped with touchloc (``touchloc sweep NAME`` runs one)."""
+    d = Path(__file__).resolve().parent / "sweeps"
+    return {p.stem: p for p in sorted(d.glob("*.toml"))}
 
 
 def _as_list(x, name):
@@ -48,8 +60,9 @@ class Sweep:
     """A grid of localisation trials.
 
     Every combination of mesh x estimator x contact count x noise x seed (passive
-    trials) and mesh x planner x touch budget x noise x seed (active trials) is one
-    trial; a trial is a pure function of its parameters (see :func:`run_trial`).
+    trials), mesh x planner x touch budget x noise x seed (active trials) and mesh x
+    contact count x noise x seed (identification trials) is one trial; a trial is a pure
+    function of its parameters (see :func:`run_trial`).
 
     Parameters
     ----------
@@ -63,15 +76,28 @@ class Sweep:
     noise : list of float
         Position noise of the simulated contacts (m, standard deviation); the normal
         noise is ``normal_noise`` radians.
-    modes : list of {"passive", "active"}
-    planners : list of str
-        Planners of active trials (:data:`PLANNERS`); the loop's own filter estimates.
+    modes : list of {"passive", "active", "identify"}
+        "identify": the hidden object is the trial's mesh; :func:`touchloc.belief.identify`
+        names one of ``candidates`` from the contacts.
+    planners : list of str or dict
+        Planners of active trials: a name from :data:`PLANNERS`, or a dict ``{"name":
+        ..., **constructor keyword arguments}``, e.g. ``{"name": "two-step", "branch":
+        3}``. The loop's own filter estimates.
+    loop : dict
+        Active trials: keyword arguments of
+        :func:`~touchloc.planners.loop.active_localization` (:data:`LOOP_OPTIONS`, e.g.
+        ``{"n_particles": 3000, "confidence": 0.003}``).
+    candidates : list of str, optional
+        Identification trials: the meshes to choose from (default: ``meshes``).
     seeds : int or list of int
         Trial seeds; an int n means ``range(n)``.
     region : {"full", "planar"}
-        Passive trials: a pose uniform in a 400 mm cube with any rotation, or x, y in a
-        100 mm square with any yaw on a table. Active trials use the planners' "6dof"
+        Passive and identification trials: a pose uniform in a cube of half-edge
+        ``half_extent`` with any rotation, or x, y in a square of half-edge
+        ``half_extent`` with any yaw on a table. Active trials use the planners' "6dof"
         and "planar" scenarios.
+    half_extent : float, optional
+        Metres; default 0.2 ("full", a 400 mm cube) or 0.05 ("planar").
     sigma_pos, sigma_nor : float
         The proximity model's noise.
     normal_noise : float
@@ -86,8 +112,11 @@ class Sweep:
     noise: list = field(default_factory=lambda: [0.002])
     modes: list = field(default_factory=lambda: ["passive"])
     planners: list = field(default_factory=lambda: ["one-step"])
+    loop: dict = field(default_factory=dict)
+    candidates: list = None
     seeds: object = 5
     region: str = "full"
+    half_extent: float = None
     sigma_pos: float = 0.002
     sigma_nor: float = 0.1
     normal_noise: float = 0.0873
@@ -116,12 +145,37 @@ class Sweep:
         if any(s < 0 for s in self.noise):
             raise ValidationError(f"noise levels must be >= 0 m, got {self.noise}")
         self.modes = [str(m) for m in _as_list(self.modes, "modes")]
-        bad = set(self.modes) - {"passive", "active"}
+        bad = set(self.modes) - set(MODES)
         if bad:
-            raise ValidationError(f"modes must be 'passive' or 'active', got {sorted(bad)}")
-        self.planners = [str(p) for p in _as_list(self.planners, "planners")]
-        if set(self.planners) - set(PLANNERS):
-            raise ValidationError(f"planners must be among {PLANNERS}, got {self.planners}")
+            raise ValidationError(f"modes must be among {MODES}, got {sorted(bad)}")
+        planners = []
+        for pl in _as_list(self.planners, "planners"):
+            if not isinstance(pl, (str, dict)):
+                raise ValidationError(f"sweep planners must be names or dicts, got {type(pl).__name__}")
+            pl = {"name": pl} if isinstance(pl, str) else dict(pl)
+            if pl.get("name") not in PLANNERS:
+                raise ValidationError(f"planner name must be one of {PLANNERS}, got {pl.get('name')!r}")
+            planners.append(pl)
+        self.planners = planners
+        if not isinstance(self.loop, dict):
+            raise ValidationError(f"sweep loop must be a dict of active_localization options, got "
+                                  f"{type(self.loop).__name__}")
+        bad = set(self.loop) - set(LOOP_OPTIONS)
+        if bad:
+            raise ValidationError(f"unknown loop options {sorted(bad)}; expected some of {LOOP_OPTIONS}")
+        self.loop = dict(self.loop)
+        if self.candidates is None:
+            self.candidates = list(self.meshes)
+        else:
+            cands = _as_list(self.candidates, "candidates")
+            if not all(isinstance(c, (str, os.PathLike)) for c in cands):
+                raise ValidationError(f"sweep candidates must be bundled names or paths, got {cands!r}"[:160])
+            self.candidates = [os.fspath(c) for c in cands]
+        if "identify" in self.modes:
+            missing = [m for m in self.meshes if m not in self.candidates]
+            if missing:
+                raise ValidationError(f"identification trials need every mesh among the candidates; "
+                                      f"{missing} are not in {self.candidates}")
         if isinstance(self.seeds, int) and not isinstance(self.seeds, bool):
             self.seeds = list(range(as_count(self.seeds, "sweep seeds", min=0, max=10_000_000)))
         else:
@@ -134,6 +188,8 @@ class Sweep:
         self.success = as_positive_float(self.success, "success (m)")
         if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValidationError(f"region must be one of {REGIONS}, got {self.region!r}")
+        self.half_extent = (DEFAULT_HALF_EXTENT[self.region] if self.half_extent is None
+                            else as_positive_float(self.half_extent, "half_extent (m)"))
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -146,14 +202,22 @@ class Sweep:
 
     @classmethod
     def from_toml(cls, path) -> "Sweep":
-        """Read a sweep from a TOML file (top-level keys are the constructor's arguments)."""
+        """Read a sweep from a TOML file (top-level keys are the constructor's arguments).
+
+        ``path`` may also be the name of a bundled sweep (:func:`bundled_sweeps`), e.g.
+        ``"study600"``, when no file of that name exists.
+        """
         try:
             import tomllib
         except ModuleNotFoundError:  # Python 3.10
             import tomli as tomllib
+        if not isinstance(path, (str, os.PathLike)):
+            raise ValidationError(f"sweep file must be a path or a bundled sweep name, got {type(path).__name__}")
         p = Path(path)
+        if not p.exists() and os.fspath(path) in bundled_sweeps():
+            p = bundled_sweeps()[os.fspath(path)]
         if not p.exists():
-            raise ValidationError(f"sweep file not found: {p}")
+            raise ValidationError(f"sweep file not found: {p} (bundled sweeps: {', '.join(bundled_sweeps())})")
         try:
             d = tomllib.loads(p.read_text())
         except tomllib.TOMLDecodeError as exc:
@@ -162,8 +226,8 @@ class Sweep:
 
     # -- the grid ----------------------------------------------------------------------
     def _common(self):
-        return {"region": self.region, "sigma_pos": self.sigma_pos, "sigma_nor": self.sigma_nor,
-                "normal_noise": self.normal_noise, "success_threshold": self.success}
+        return {"region": self.region, "half_extent": self.half_extent, "sigma_pos": self.sigma_pos,
+                "sigma_nor": self.sigma_nor, "normal_noise": self.normal_noise, "success_threshold": self.success}
 
     def trials(self) -> list:
         """Every trial's parameters (dicts of plain values), in a fixed order, with ``trial_id``."""
@@ -177,11 +241,24 @@ class Sweep:
                     out.append({"mode": mode, "mesh": mesh, "estimator": est["name"], "planner": "",
                                 "options": json.dumps(opts, sort_keys=True), "contacts": k,
                                 "noise": noise, "seed": seed, **common})
-            else:
+            elif mode == "active":
                 grid = itertools.product(self.meshes, self.planners, self.contacts, self.noise, self.seeds)
                 for mesh, planner, k, noise, seed in grid:
-                    out.append({"mode": mode, "mesh": mesh, "estimator": "smc", "planner": planner,
-                                "options": "{}", "contacts": k, "noise": noise, "seed": seed, **common})
+                    opts = {}
+                    kw = {k2: v for k2, v in planner.items() if k2 != "name"}
+                    if kw:
+                        opts["planner"] = kw
+                    if self.loop:
+                        opts["loop"] = self.loop
+                    out.append({"mode": mode, "mesh": mesh, "estimator": "smc", "planner": planner["name"],
+                                "options": json.dumps(opts, sort_keys=True), "contacts": k, "noise": noise,
+                                "seed": seed, **common})
+            else:
+                grid = itertools.product(self.meshes, self.contacts, self.noise, self.seeds)
+                opts = json.dumps({"candidates": self.candidates}, sort_keys=True)
+                for mesh, k, noise, seed in grid:
+                    out.append({"mode": mode, "mesh": mesh, "estimator": "identify", "planner": "",
+                                "options": opts, "contacts": k, "noise": noise, "seed": seed, **common})
         for p in out:
             p["trial_id"] = trial_id(p)
         return out
