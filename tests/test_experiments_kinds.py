@@ -138,3 +138,35 @@ def test_ctrl_c_of_a_real_sweep_then_the_same_command_loses_nothing_and_repeats_
     assert len(ids) == 14 and len(set(ids)) == 14    # nothing twice, nothing lost
     assert set(ids) == {t["trial_id"] for t in Sweep.from_toml(spec).trials()}
     assert list(rows[0]) == list(COLUMNS)
+
+
+def test_dnf_trials_are_a_sweep_too_and_repeat_on_a_process_pool(tmp_path):
+    from touchloc.experiments import DNF_COLUMNS, DNFSweep
+    from touchloc.experiments.trial import run_dnf_trial
+
+    sw = DNFSweep(sides=[4, 0], estimators=["histogram", "DNF, corrected"], sets=1, seed=7, revolutions=1.5,
+                  cells=[{}, {"noise_deg": 6.0, "bias": 0.1}])
+    trials = sw.trials()
+    assert len(trials) == 2 * 2 * 2 and len({t["trial_id"] for t in trials}) == 8
+    assert {(t["bias_lo"], t["bias_hi"]) for t in trials} == {(0.04, 0.08), (0.1, 0.1)}
+    serial = run_sweep(sw, tmp_path / "s.csv", executor_spec="serial", parquet=False)
+    procs = run_sweep(sw, tmp_path / "p.csv", executor_spec="processes", workers=2, parquet=False)
+    assert same_tables(serial, procs)
+    with open(tmp_path / "s.csv") as fh:
+        assert fh.readline().strip().split(",") == list(DNF_COLUMNS)
+    for r in serial:
+        assert 0.0 <= r["accuracy"] <= 1.0 and r["samples"] > 50 and r["time_per_step"] > 0
+        assert isinstance(r["sides"], int) and r["kind"] == "dnf"
+    # the estimators of one data set see the same data; the row repeats in this process
+    a = run_dnf_trial(trials[0])
+    b = next(r for r in serial if r["trial_id"] == trials[0]["trial_id"])
+    assert {k: v for k, v in a.items() if "time" not in k} == {k: v for k, v in b.items() if "time" not in k}
+    # one kind per results file
+    with pytest.raises(ValidationError, match="one kind"):
+        run_sweep(trials + Sweep(seeds=1).trials(), tmp_path / "mixed.csv", executor_spec="serial")
+    with pytest.raises(ValidationError, match="columns"):
+        run_sweep(Sweep(seeds=1), tmp_path / "s.csv", executor_spec="serial")
+    with pytest.raises(ValidationError, match="DNF estimators"):
+        DNFSweep(estimators=["kalman"])
+    with pytest.raises(ValidationError, match="cells"):
+        DNFSweep(cells=[{"noise": 3.0}])

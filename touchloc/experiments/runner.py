@@ -12,8 +12,8 @@ from pathlib import Path
 
 from .._validate import as_bool, as_count, as_path
 from ..errors import ValidationError
-from .sweep import Sweep
-from .trial import RESULT_COLUMNS, TIME_COLUMNS, run_trial, warm
+from .sweep import DNFSweep, Sweep
+from .trial import DNF_COLUMNS, RESULT_COLUMNS, TIME_COLUMNS, run_dnf_trial, run_trial, warm
 
 __all__ = ["SerialExecutor", "executor", "run_sweep", "read_results", "write_parquet", "summarize", "same_tables",
            "warm_keys", "COLUMNS"]
@@ -21,9 +21,18 @@ __all__ = ["SerialExecutor", "executor", "run_sweep", "read_results", "write_par
 #: column order of a results file
 COLUMNS = ("trial_id", "mode", "mesh", "estimator", "planner", "options", "contacts", "noise", "seed",
            "region", "half_extent", "sigma_pos", "sigma_nor", "normal_noise", "success_threshold") + RESULT_COLUMNS
-_INT = {"contacts", "seed", "touches"}
+_INT = {"contacts", "seed", "touches", "sides", "normals_per_contact", "cell", "object", "set", "samples"}
 _BOOL = {"success", "degenerate", "cov50", "cov90", "cov95"}
-_STR = {"trial_id", "mode", "mesh", "estimator", "planner", "options", "region", "metrics"}
+_STR = {"trial_id", "mode", "mesh", "estimator", "planner", "options", "region", "metrics", "kind", "normal_source"}
+#: per kind of trial: the function that runs one, and the columns of its results file
+_KINDS = {"localization": (run_trial, COLUMNS), "dnf": (run_dnf_trial, DNF_COLUMNS)}
+
+
+def _kind(trials) -> str:
+    kinds = {t.get("kind", "localization") for t in trials}
+    if len(kinds) > 1 or not kinds <= set(_KINDS):
+        raise ValidationError(f"a sweep's trials must be of one kind among {sorted(_KINDS)}, got {sorted(map(str, kinds))}")
+    return kinds.pop() if kinds else "localization"
 
 
 class SerialExecutor(cf.Executor):
@@ -246,8 +255,9 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
 
     Parameters
     ----------
-    sweep : Sweep or list of dict
-        The sweep, or trial parameters from :meth:`Sweep.trials`.
+    sweep : Sweep, DNFSweep or list of dict
+        The sweep, or trial parameters from :meth:`Sweep.trials` (or all from
+        :meth:`DNFSweep.trials`: a results file holds one kind of trial).
     out : str or Path
         Results CSV. Rows are appended and flushed one by one, so an interrupted run
         keeps every finished trial; rerunning skips them (``resume``).
@@ -275,12 +285,15 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
     list of dict
         Every row of ``out`` (old and new), sorted by trial_id.
     """
-    if isinstance(sweep, Sweep):
+    if isinstance(sweep, (Sweep, DNFSweep)):
         trials = sweep.trials()
     elif isinstance(sweep, (list, tuple)) and all(isinstance(t, dict) for t in sweep):
         trials = list(sweep)
     else:
-        raise ValidationError(f"sweep must be a Sweep or a list of trial dicts, got {type(sweep).__name__}")
+        raise ValidationError(f"sweep must be a Sweep, a DNFSweep or a list of trial dicts, got {type(sweep).__name__}")
+    if not all("trial_id" in t for t in trials):
+        raise ValidationError("every trial dict needs its trial_id (take them from Sweep.trials())")
+    fn, columns = _KINDS[_kind(trials)]
     out = as_path(out, "out", must_exist=False)
     if not isinstance(executor_spec, str):
         raise ValidationError(f"executor_spec must be a str (see executor()), got {type(executor_spec).__name__}")
@@ -296,41 +309,41 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
         out.unlink()
     if out.exists():
         _truncate_partial_line(out)  # before reading: a cut-off row is not a finished trial
-        _check_header(out)
+        _check_header(out, columns)
     done = _done_ids(out) if out.exists() else set()
     todo = [t for t in trials if t["trial_id"] not in done]
     new_file = not out.exists() or out.stat().st_size == 0
     with open(out, "a", newline="") as fh:
         w = csv.writer(fh)
         if new_file:
-            w.writerow(COLUMNS)
+            w.writerow(columns)
             fh.flush()
         if todo:
-            keys = warm_keys(todo) if preload else ()
+            keys = warm_keys(todo) if preload and fn is run_trial else ()
             ctx = (contextlib.nullcontext(executor_obj) if executor_obj is not None
                    else executor(executor_spec, workers, preload=keys))
             with ctx as ex:
-                _drain(ex, todo, w, fh, progress)
+                _drain(ex, fn, columns, todo, w, fh, progress)
     rows = read_results(out)
     if parquet:
         write_parquet(rows, out.with_suffix(".parquet"))
     return rows
 
 
-def _drain(ex, todo, writer, fh, progress):
+def _drain(ex, fn, columns, todo, writer, fh, progress):
     from .._util import progress as bar
 
     futures, written = [], set()
 
     def write(f):
         row = f.result()
-        writer.writerow([_encode(row[c]) for c in COLUMNS])
+        writer.writerow([_encode(row[c]) for c in columns])
         fh.flush()
         written.add(f)
 
     try:
         for t in todo:
-            futures.append(ex.submit(run_trial, t))
+            futures.append(ex.submit(fn, t))
         for f in bar(cf.as_completed(futures), total=len(futures), desc="trials", enabled=progress):
             write(f)
     except KeyboardInterrupt:
@@ -348,13 +361,13 @@ def _drain(ex, todo, writer, fh, progress):
         raise
 
 
-def _check_header(path: Path) -> None:
+def _check_header(path: Path, columns) -> None:
     with open(path, newline="", encoding="utf-8", errors="replace") as fh:
         first = fh.readline()
     if not first:
         return
     head = next(csv.reader([first]))
-    if tuple(head) != COLUMNS:
+    if tuple(head) != tuple(columns):
         raise ValidationError(f"{path}: its columns are not this version's results columns (first: "
                               f"{head[:6]}...); write to another file, or start it anew (--fresh / resume=False)")
 
@@ -362,7 +375,8 @@ def _check_header(path: Path) -> None:
 def same_tables(a, b) -> bool:
     """Whether two lists of result rows are equal in every column but the wall times."""
     a, b = sorted(a, key=lambda r: r["trial_id"]), sorted(b, key=lambda r: r["trial_id"])
-    return len(a) == len(b) and all(ra[c] == rb[c] for ra, rb in zip(a, b) for c in COLUMNS if c not in TIME_COLUMNS)
+    return len(a) == len(b) and all(ra.keys() == rb.keys() and all(ra[c] == rb[c] for c in ra if c not in TIME_COLUMNS)
+                                    for ra, rb in zip(a, b))
 
 
 def _truncate_partial_line(path: Path) -> None:

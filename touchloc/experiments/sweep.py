@@ -12,7 +12,7 @@ from pathlib import Path
 from .._validate import as_count, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
-__all__ = ["Sweep", "ESTIMATORS", "PLANNERS", "MODES", "LOOP_OPTIONS", "trial_id", "bundled_sweeps"]
+__all__ = ["Sweep", "DNFSweep", "DNF_ESTIMATORS", "ESTIMATORS", "PLANNERS", "MODES", "LOOP_OPTIONS", "trial_id", "bundled_sweeps"]
 
 #: estimator names a passive trial accepts (see touchloc.experiments.trial)
 ESTIMATORS = ("ss", "pf", "hf", "apf", "mpf", "smc", "ss+mcmc")
@@ -261,6 +261,98 @@ class Sweep:
                                 "options": opts, "contacts": k, "noise": noise, "seed": seed, **common})
         for p in out:
             p["trial_id"] = trial_id(p)
+        return out
+
+    def __len__(self) -> int:
+        return len(self.trials())
+
+
+#: DNF estimators (names of touchloc.dnf.compare.default_estimators)
+DNF_ESTIMATORS = ("histogram", "memory, uncorrected", "DNF, corrected", "particle filter")
+_DNF_CELL = {"normals_per_contact": 2, "noise_deg": 3.0, "drop": 0.1, "bias": (0.04, 0.08), "slip_deg": 1.5}
+
+
+@dataclass
+class DNFSweep:
+    """A grid of orientation-tracking trials (seed 000): cells x objects x data sets x estimators.
+
+    Each cell is one setting of the rotating-object data generator
+    (:func:`touchloc.dnf.generate_rotation_dataset`); every estimator runs on the same
+    data sets, the data set of (cell, object, set) drawn from ``[seed, cell, object,
+    set]``. Run it with :func:`run_sweep` like a :class:`Sweep`; the results file has
+    the columns :data:`~touchloc.experiments.trial.DNF_COLUMNS`.
+
+    Parameters
+    ----------
+    sides : list of int
+        Objects: regular n-gon prisms by their number of sides, 0 for a round one.
+    cells : list of dict
+        Generator settings, each overriding the base cell: ``normals_per_contact`` (2),
+        ``noise_deg`` (3), ``drop`` (0.1), ``bias`` ((0.04, 0.08): the odometry's
+        under-estimate, a float or a (lo, hi) range), ``slip_deg`` (1.5).
+    sets : int
+        Data sets per cell and object.
+    estimators : list of str
+        Names from :data:`DNF_ESTIMATORS`.
+    seed : int
+    revolutions : float
+    normal_source : str
+        See :func:`touchloc.dnf.generate_rotation_dataset` ("pad": blob centroids on the
+        curved finger pad).
+    """
+
+    sides: list = field(default_factory=lambda: [4, 5, 6, 8, 0])
+    cells: list = field(default_factory=lambda: [{}])
+    sets: int = 1
+    estimators: list = field(default_factory=lambda: list(DNF_ESTIMATORS))
+    seed: int = 0
+    revolutions: float = 4.0
+    normal_source: str = "pad"
+
+    def __post_init__(self):
+        self.sides = [as_count(n, "sides", min=0, max=360) for n in _as_list(self.sides, "sides")]
+        if any(n in (1, 2) for n in self.sides):
+            raise ValidationError(f"sides must be 0 (round) or >= 3, got {self.sides}")
+        cells = []
+        for c in _as_list(self.cells, "cells"):
+            if not isinstance(c, dict) or set(c) - set(_DNF_CELL):
+                raise ValidationError(f"cells must be dicts with keys among {sorted(_DNF_CELL)}, got {c!r}"[:160])
+            c = dict(_DNF_CELL, **c)
+            b = c["bias"]
+            b = (b, b) if isinstance(b, (int, float)) and not isinstance(b, bool) else tuple(_as_list(b, "cell bias"))
+            if len(b) != 2:
+                raise ValidationError(f"cell bias must be a float or a (lo, hi) pair, got {c['bias']!r}")
+            c["bias"] = tuple(as_nonnegative_float(x, "cell bias") for x in b)
+            c["normals_per_contact"] = as_count(c["normals_per_contact"], "normals_per_contact", min=1, max=1000)
+            for k in ("noise_deg", "drop", "slip_deg"):
+                c[k] = as_nonnegative_float(c[k], f"cell {k}")
+            cells.append(c)
+        self.cells = cells
+        self.sets = as_count(self.sets, "sets", min=1, max=100_000)
+        self.estimators = [str(e) for e in _as_list(self.estimators, "estimators")]
+        if set(self.estimators) - set(DNF_ESTIMATORS):
+            raise ValidationError(f"DNF estimators must be among {DNF_ESTIMATORS}, got {self.estimators}")
+        self.seed = as_count(self.seed, "seed", min=0)
+        self.revolutions = as_positive_float(self.revolutions, "revolutions")
+        if not isinstance(self.normal_source, str):
+            raise ValidationError(f"normal_source must be a str (see generate_rotation_dataset), got "
+                                  f"{type(self.normal_source).__name__}")
+
+    def trials(self) -> list:
+        """Every trial's parameters (with ``kind = "dnf"`` and ``trial_id``), in a fixed order."""
+        out = []
+        for ci, c in enumerate(self.cells):
+            for oi, n in enumerate(self.sides):
+                for i in range(self.sets):
+                    for est in self.estimators:
+                        p = {"kind": "dnf", "sides": n, "estimator": est,
+                             "normals_per_contact": c["normals_per_contact"], "noise_deg": c["noise_deg"],
+                             "drop": c["drop"], "bias_lo": c["bias"][0], "bias_hi": c["bias"][1],
+                             "slip_deg": c["slip_deg"], "revolutions": self.revolutions,
+                             "normal_source": self.normal_source, "seed": self.seed, "cell": ci, "object": oi,
+                             "set": i}
+                        p["trial_id"] = trial_id(p)
+                        out.append(p)
         return out
 
     def __len__(self) -> int:

@@ -17,13 +17,14 @@ import numpy as np
 from .._validate import as_count, as_mapping, as_nonnegative_float, as_positive_float
 from ..errors import ValidationError
 
-__all__ = ["run_trial", "warm", "RESULT_COLUMNS", "TIME_COLUMNS", "clear_cache", "cache_info"]
+__all__ = ["run_trial", "run_dnf_trial", "warm", "RESULT_COLUMNS", "DNF_COLUMNS", "TIME_COLUMNS", "clear_cache",
+           "cache_info"]
 
 #: the measured columns of a result row (besides the trial parameters)
 RESULT_COLUMNS = ("success", "add_s", "err_t", "err_r", "time", "plan_time", "touches", "credible_level",
                   "cov50", "cov90", "cov95", "degenerate", "metrics")
 #: the columns that are wall times: the only ones that differ between two runs of a trial
-TIME_COLUMNS = ("time", "plan_time")
+TIME_COLUMNS = ("time", "plan_time", "time_per_step")
 LEVELS = (0.5, 0.9, 0.95)
 
 _CACHE: dict = {}
@@ -116,11 +117,11 @@ def _estimate(p, model, contacts, region, rng):
     opts = json.loads(p["options"]) if p["options"] else {}
     name = p["estimator"]
     if name == "ss":
-        return ScalingSeries(model, rng=rng, **opts).localize(contacts, region)
+        return ScalingSeries(model, rng=rng, **{"progress": False, **opts}).localize(contacts, region)
     if name == "ss+mcmc":
         mc = {k[len("mcmc_"):]: v for k, v in opts.items() if k.startswith("mcmc_")}
         ss = {k: v for k, v in opts.items() if not k.startswith("mcmc_")}
-        b = ScalingSeries(model, rng=rng, **ss).localize(contacts, region)
+        b = ScalingSeries(model, rng=rng, **{"progress": False, **ss}).localize(contacts, region)
         return MCMC(model, rng=rng, **mc).refine(contacts, b)
     if name == "pf":
         return ParticleFilter(model, rng=rng, **opts).localize(contacts, region)
@@ -161,7 +162,8 @@ def _identify(p, obj, data_rng, est_rng):
     models = {c: _model(dict(p, mesh=c)) for c in cands}
     t0 = time.perf_counter()
     try:
-        post, beliefs = identify(models, contacts, region, rng=est_rng, return_beliefs=True, **opts)
+        post, beliefs = identify(models, contacts, region, rng=est_rng, return_beliefs=True,
+                                 **{"progress": False, **opts})
     except BeliefDegenerateError:
         post, beliefs = None, None
     dt = time.perf_counter() - t0
@@ -317,3 +319,76 @@ def warm(keys) -> dict:
             warnings.simplefilter("ignore")
             model.log_likelihood(np.eye(4)[None], Contacts(pts, nrm))  # loads grids and compiled kernels
     return cache_info()
+
+
+# -- DNF orientation trials (seed 000) ----------------------------------------------------
+#: columns of a DNF results file: parameters, then measurements
+DNF_COLUMNS = ("trial_id", "kind", "sides", "estimator", "normals_per_contact", "noise_deg", "drop", "bias_lo",
+               "bias_hi", "slip_deg", "revolutions", "normal_source", "seed", "cell", "object", "set",
+               "accuracy", "count_mean", "err_rms_deg", "samples", "time", "time_per_step")
+_DNF_KEYS = DNF_COLUMNS[1:DNF_COLUMNS.index("accuracy")]
+
+
+def _rotation_dataset(p):
+    from ..dnf import generate_rotation_dataset
+
+    def build():
+        rng = np.random.default_rng([p["seed"], p["cell"], p["object"], p["set"]])
+        return generate_rotation_dataset(
+            p["sides"], revolutions=p["revolutions"], rng=rng, normals_per_contact=p["normals_per_contact"],
+            noise=np.radians(p["noise_deg"]), drop=p["drop"], normal_source=p["normal_source"],
+            slip_std=np.radians(p["slip_deg"]), under_estimate=(p["bias_lo"], p["bias_hi"]))
+
+    key = ("dataset",) + tuple(p[k] for k in _DNF_KEYS if k != "estimator")
+    return _cached(key, build)
+
+
+def run_dnf_trial(params: dict) -> dict:
+    """One orientation estimator on one simulated rotating n-gon: a pure function of ``params``.
+
+    Parameters
+    ----------
+    params : dict
+        One element of :meth:`DNFSweep.trials`: the object (``sides``, 0 for round),
+        the estimator (a name of :func:`touchloc.dnf.compare.default_estimators`, made
+        with ``rng=0``), the data set's generator settings (``normals_per_contact``,
+        ``noise_deg``, ``drop``, odometry under-estimate ``bias_lo..bias_hi``,
+        ``slip_deg``, ``revolutions``, ``normal_source``) and its seed
+        ``[seed, cell, object, set]``.
+
+    Returns
+    -------
+    dict
+        ``params`` plus ``accuracy`` (fraction of second-half samples with the right
+        side count), ``count_mean`` (mean second-half count), ``err_rms_deg``
+        (second-half orientation error, wrapped to the symmetry, RMS), ``samples``,
+        ``time`` (s, the whole run) and ``time_per_step`` (s). All but the two times are
+        a function of ``params`` alone. Data sets are cached per process, so the
+        estimators of one data set that meet in a worker share it.
+    """
+    from ..dnf.compare import default_estimators, run_estimator
+
+    p = as_mapping(params, "params", expected="a dict of DNF trial parameters (an element of DNFSweep.trials())")
+    missing = [k for k in _DNF_KEYS if k not in p]
+    if missing:
+        raise ValidationError(f"DNF trial params lack {missing}; pass an element of DNFSweep.trials()")
+    makers = default_estimators(rng=0)
+    if p["estimator"] not in makers:
+        raise ValidationError(f"DNF trial estimator must be one of {sorted(makers)}, got {p['estimator']!r}")
+    p["sides"] = as_count(p["sides"], "sides", min=0, max=360)
+    for k in ("normals_per_contact", "seed", "cell", "object", "set"):
+        p[k] = as_count(p[k], f"DNF trial {k}", min=0 if k != "normals_per_contact" else 1)
+    for k in ("noise_deg", "drop", "bias_lo", "bias_hi", "slip_deg"):
+        p[k] = as_nonnegative_float(p[k], f"DNF trial {k}")
+    p["revolutions"] = as_positive_float(p["revolutions"], "DNF trial revolutions")
+    ds = _rotation_dataset(p)
+    t0 = time.perf_counter()
+    res = run_estimator(p["estimator"], makers[p["estimator"]], ds)
+    dt = time.perf_counter() - t0
+    half = len(res.counts) // 2
+    err = res.error[half:] if res.error is not None else np.array([np.nan])
+    row = dict(p)
+    row.update(accuracy=float(res.accuracy), count_mean=float(np.mean(res.second_half)),
+               err_rms_deg=float(np.degrees(np.sqrt(np.mean(np.square(err))))), samples=int(len(res.counts)),
+               time=float(dt), time_per_step=float(res.seconds_per_step))
+    return row
