@@ -20,7 +20,7 @@ NAMES = ["bread", "can", "cereal", "lemon", "milk", "mug"]
 
 def sweep(quick: bool) -> Sweep:
     """The true mesh x contact count x seed; every trial chooses among all six meshes."""
-    return Sweep(meshes=NAMES[:2] if quick else NAMES, candidates=NAMES, modes=["identify"],
+    return Sweep(meshes=NAMES[:2] if quick else NAMES, identities=NAMES, modes=["identify"],
                  contacts=[5, 10] if quick else [5, 10, 20], seeds=1 if quick else 4, half_extent=0.1,
                  noise=[0.002], normal_noise=float(np.radians(5.0)), sigma_pos=0.002, sigma_nor=0.1)
 

@@ -54,8 +54,8 @@ def test_sweep_validation_of_the_new_fields():
         Sweep(modes=["active"], planners=[{"name": "greedy"}])
     with pytest.raises(ValidationError, match="loop options"):
         Sweep(modes=["active"], loop={"max_touches": 3})
-    with pytest.raises(ValidationError, match="candidates"):
-        Sweep(meshes=["can", "milk"], modes=["identify"], candidates=["can"])
+    with pytest.raises(ValidationError, match="identities"):
+        Sweep(meshes=["can", "milk"], modes=["identify"], identities=["can"])
     with pytest.raises(ValidationError, match="modes"):
         Sweep(modes=["dream"])
     with pytest.raises(ValidationError, match="half_extent"):

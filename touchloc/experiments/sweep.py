@@ -78,7 +78,7 @@ class Sweep:
         noise is ``normal_noise`` radians.
     modes : list of {"passive", "active", "identify"}
         "identify": the hidden object is the trial's mesh; :func:`touchloc.belief.identify`
-        names one of ``candidates`` from the contacts.
+        names one of ``identities`` from the contacts.
     planners : list of str or dict
         Planners of active trials: a name from :data:`PLANNERS`, or a dict ``{"name":
         ..., **constructor keyword arguments}``, e.g. ``{"name": "two-step", "branch":
@@ -87,7 +87,7 @@ class Sweep:
         Active trials: keyword arguments of
         :func:`~touchloc.planners.loop.active_localization` (:data:`LOOP_OPTIONS`, e.g.
         ``{"n_particles": 3000, "confidence": 0.003}``).
-    candidates : list of str, optional
+    identities : list of str, optional
         Identification trials: the meshes to choose from (default: ``meshes``).
     seeds : int or list of int
         Trial seeds; an int n means ``range(n)``.
@@ -113,7 +113,7 @@ class Sweep:
     modes: list = field(default_factory=lambda: ["passive"])
     planners: list = field(default_factory=lambda: ["one-step"])
     loop: dict = field(default_factory=dict)
-    candidates: list = None
+    identities: list = None
     seeds: object = 5
     region: str = "full"
     half_extent: float = None
@@ -164,18 +164,18 @@ class Sweep:
         if bad:
             raise ValidationError(f"unknown loop options {sorted(bad)}; expected some of {LOOP_OPTIONS}")
         self.loop = dict(self.loop)
-        if self.candidates is None:
-            self.candidates = list(self.meshes)
+        if self.identities is None:
+            self.identities = list(self.meshes)
         else:
-            cands = _as_list(self.candidates, "candidates")
+            cands = _as_list(self.identities, "identities")
             if not all(isinstance(c, (str, os.PathLike)) for c in cands):
-                raise ValidationError(f"sweep candidates must be bundled names or paths, got {cands!r}"[:160])
-            self.candidates = [os.fspath(c) for c in cands]
+                raise ValidationError(f"sweep identities must be bundled names or paths, got {cands!r}"[:160])
+            self.identities = [os.fspath(c) for c in cands]
         if "identify" in self.modes:
-            missing = [m for m in self.meshes if m not in self.candidates]
+            missing = [m for m in self.meshes if m not in self.identities]
             if missing:
-                raise ValidationError(f"identification trials need every mesh among the candidates; "
-                                      f"{missing} are not in {self.candidates}")
+                raise ValidationError(f"identification trials need every mesh among the identities; "
+                                      f"{missing} are not in {self.identities}")
         if isinstance(self.seeds, int) and not isinstance(self.seeds, bool):
             self.seeds = list(range(as_count(self.seeds, "sweep seeds", min=0, max=10_000_000)))
         else:
@@ -255,7 +255,7 @@ class Sweep:
                                 "seed": seed, **common})
             else:
                 grid = itertools.product(self.meshes, self.contacts, self.noise, self.seeds)
-                opts = json.dumps({"candidates": self.candidates}, sort_keys=True)
+                opts = json.dumps({"candidates": self.identities}, sort_keys=True)
                 for mesh, k, noise, seed in grid:
                     out.append({"mode": mode, "mesh": mesh, "estimator": "identify", "planner": "",
                                 "options": opts, "contacts": k, "noise": noise, "seed": seed, **common})
