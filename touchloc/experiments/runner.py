@@ -29,7 +29,7 @@ _KINDS = {"localization": (run_trial, COLUMNS), "dnf": (run_dnf_trial, DNF_COLUM
 
 
 def _kind(trials) -> str:
-    kinds = {t.get("kind", "localization") for t in trials}
+    kinds = {str(t.get("kind", "localization")) for t in trials}
     if len(kinds) > 1 or not kinds <= set(_KINDS):
         raise ValidationError(f"a sweep's trials must be of one kind among {sorted(_KINDS)}, got {sorted(map(str, kinds))}")
     return kinds.pop() if kinds else "localization"
@@ -104,12 +104,16 @@ def warm_keys(trials) -> list:
 
     out = []
     for t in trials:
-        meshes = [t["mesh"]]
-        if t.get("mode") == "identify":
-            meshes += json.loads(t["options"]).get("candidates", [])
+        try:
+            meshes = [t["mesh"]]
+            if t.get("mode") == "identify":
+                meshes += list(json.loads(t["options"]).get("candidates", []))
+            sp, sn = float(t["sigma_pos"]), float(t["sigma_nor"])
+        except (KeyError, TypeError, ValueError, AttributeError):
+            continue  # not a valid trial: run_trial says what is wrong with it
         for m in meshes:
-            k = (m, float(t["sigma_pos"]), float(t["sigma_nor"]))
-            if k not in out:
+            k = (m, sp, sn)
+            if isinstance(m, str) and sp > 0 and sn > 0 and k not in out:
                 out.append(k)
     return out
 
@@ -311,7 +315,11 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
         _truncate_partial_line(out)  # before reading: a cut-off row is not a finished trial
         _check_header(out, columns)
     done = _done_ids(out) if out.exists() else set()
-    todo = [t for t in trials if t["trial_id"] not in done]
+    todo = []
+    for t in trials:  # each trial once, even when listed twice
+        if t["trial_id"] not in done:
+            done.add(t["trial_id"])
+            todo.append(t)
     new_file = not out.exists() or out.stat().st_size == 0
     with open(out, "a", newline="") as fh:
         w = csv.writer(fh)
