@@ -97,7 +97,8 @@ class Sweep:
         ``half_extent`` with any yaw on a table. Active trials use the planners' "6dof"
         and "planar" scenarios.
     half_extent : float, optional
-        Metres; default 0.2 ("full", a 400 mm cube) or 0.05 ("planar").
+        Metres; default 0.2 ("full", a 400 mm cube) or 0.05 ("planar"). Active trials
+        keep their scenario's own region (see ``touchloc.planners.scenarios.SETTINGS``).
     sigma_pos, sigma_nor : float
         The proximity model's noise.
     normal_noise : float

@@ -168,7 +168,8 @@ def _identify(p, obj, data_rng, est_rng):
         post, beliefs = None, None
     dt = time.perf_counter() - t0
     if post is None:  # no candidate explains the contacts
-        return true, None, None, dt, 0.0, len(contacts), {"best": "", "p_true": 0.0, "p_best": 0.0}
+        return true, None, None, dt, 0.0, len(contacts), {"best": "", "p_true": 0.0, "p_best": 0.0,
+                                                                   "correct": False}
     best = max(post, key=post.get)
     metrics = {"best": best, "p_true": float(post[p["mesh"]]), "p_best": float(post[best]),
                "correct": bool(best == p["mesh"])}
