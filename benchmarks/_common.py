@@ -85,9 +85,10 @@ def run_trials(name: str, trials: list, quick: bool):
     ids = {t["trial_id"] for t in trials}
     rows = [r for r in rows if r["trial_id"] in ids]
     busy = sum(r["time"] for r in rows)
+    setup = "; meshes and models built once per worker before the first trial" if "mesh" in trials[0] else ""
     how = (f"{len(rows)} trials run as one sweep (`touchloc.experiments.run_sweep`, executor "
-           f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread; meshes "
-           f"and models built once per worker before the first trial): {wall:.0f} s wall for {busy:.0f} s of "
-           f"estimator time ({busy / wall:.2f} trials' worth of estimator work at once). Tidy rows: "
+           f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread{setup}): "
+           f"{wall:.0f} s wall for {busy:.0f} s of estimator time ({busy / wall:.2f} trials' worth of estimator "
+           f"work at once). Tidy rows: "
            f"`{path.relative_to(RESULTS.parent.parent)}` (`touchloc report` draws them).")
     return rows, how
