@@ -90,5 +90,5 @@ def run_trials(name: str, trials: list, quick: bool):
            f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread{setup}): "
            f"{wall:.0f} s wall for {busy:.0f} s of estimator time ({busy / wall:.2f} trials' worth of estimator "
            f"work at once). Tidy rows: "
-           f"`{path.relative_to(RESULTS.parent.parent)}` (`touchloc report` draws them).")
+           f"`{path.relative_to(RESULTS.parent.parent)}`" + (" (`touchloc report` draws them)." if setup else "."))
     return rows, how
