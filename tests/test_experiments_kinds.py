@@ -173,3 +173,24 @@ def test_dnf_trials_are_a_sweep_too_and_repeat_on_a_process_pool(tmp_path):
         DNFSweep(estimators=["kalman"])
     with pytest.raises(ValidationError, match="cells"):
         DNFSweep(cells=[{"noise": 3.0}])
+
+
+def test_a_dnf_sweep_from_toml_runs_through_the_command(tmp_path, capsys):
+    from touchloc.cli import main
+    from touchloc.experiments import DNFSweep
+
+    spec = tmp_path / "d.toml"
+    spec.write_text('kind = "dnf"\nsides = [4]\nestimators = ["histogram"]\nrevolutions = 1.0\nseed = 5\n'
+                    '[[cells]]\nnoise_deg = 2.0\n[[cells]]\nbias = [0.0, 0.02]\n')
+    sw = Sweep.from_toml(spec)
+    assert isinstance(sw, DNFSweep) and len(sw.trials()) == 2 and sw.cells[1]["bias"] == (0.0, 0.02)
+    out = tmp_path / "d.csv"
+    assert main(["sweep", str(spec), "-o", str(out), "--executor", "serial", "--no-progress"]) == 0
+    assert "2/2 trials" in capsys.readouterr().out
+    assert [r["cell"] for r in sorted(read_results(out), key=lambda r: r["cell"])] == [0, 1]
+    spec.write_text('kind = "dnf"\nmeshes = ["can"]\n')
+    with pytest.raises(ValidationError, match="unknown sweep keys"):
+        Sweep.from_toml(spec)
+    spec.write_text('kind = "maps"\n')
+    with pytest.raises(ValidationError, match="kind"):
+        Sweep.from_toml(spec)

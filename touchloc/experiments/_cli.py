@@ -10,7 +10,8 @@ def register(sub):
                        description="Run every trial of a sweep declared in a TOML file and append one row "
                                    "per trial to a CSV file as it finishes. Rerunning the same command "
                                    "skips the trials already in the file, so an interrupted sweep resumes.")
-    p.add_argument("spec", help="sweep file (TOML): meshes, estimators, contacts, noise, modes, planners, seeds, ...; "
+    p.add_argument("spec", help="sweep file (TOML): meshes, estimators, contacts, noise, modes, planners, seeds, ... "
+                                "(kind = \"dnf\": sides, cells, sets, estimators, seed, revolutions); "
                                 "or a bundled sweep's name (study600: 3 estimators x 4 meshes x 5 contact counts "
                                 "x 10 seeds)")
     p.add_argument("-o", "--out", default="results.csv", help="results CSV (default results.csv)")
@@ -50,8 +51,8 @@ def run_sweep_cmd(args) -> int:
               "run the same command again to resume")
         return 130
     mine = [r for r in rows if r["trial_id"] in ids]
-    ok = sum(r["success"] for r in mine)
-    print(f"{len(mine)}/{n} trials in {args.out}; {ok} succeeded; {time.perf_counter() - t0:.1f} s")
+    ok = f"; {sum(r['success'] for r in mine)} succeeded" if mine and "success" in mine[0] else ""
+    print(f"{len(mine)}/{n} trials in {args.out}{ok}; {time.perf_counter() - t0:.1f} s")
     return 0
 
 

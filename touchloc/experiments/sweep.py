@@ -44,6 +44,21 @@ def bundled_sweeps() -> dict:
     return {p.stem: p for p in sorted(d.glob("*.toml"))}
 
 
+def _from_dict(d, default_kind="localization"):
+    if not isinstance(d, dict):
+        raise ValidationError(f"a sweep is declared by a dict of its keys, got {type(d).__name__}")
+    d = dict(d)
+    kind = d.pop("kind", default_kind)
+    if kind not in ("localization", "dnf"):
+        raise ValidationError(f"sweep kind must be 'localization' (the default) or 'dnf', got {kind!r}")
+    target = DNFSweep if kind == "dnf" else Sweep
+    known = set(target.__dataclass_fields__)
+    extra = set(d) - known
+    if extra:
+        raise ValidationError(f"unknown sweep keys {sorted(extra)}; expected some of {sorted(known)}")
+    return target(**d)
+
+
 def _as_list(x, name):
     if isinstance(x, (str, int, float, dict, os.PathLike)):
         x = [x]
@@ -194,16 +209,14 @@ class Sweep:
 
     # -- construction ------------------------------------------------------------------
     @classmethod
-    def from_dict(cls, d: dict) -> "Sweep":
-        known = set(cls.__dataclass_fields__)
-        extra = set(d) - known
-        if extra:
-            raise ValidationError(f"unknown sweep keys {sorted(extra)}; expected some of {sorted(known)}")
-        return cls(**d)
+    def from_dict(cls, d: dict):
+        """A sweep from its keys; ``kind = "dnf"`` makes a :class:`DNFSweep` instead."""
+        return _from_dict(d, "dnf" if cls is DNFSweep else "localization")
 
     @classmethod
-    def from_toml(cls, path) -> "Sweep":
-        """Read a sweep from a TOML file (top-level keys are the constructor's arguments).
+    def from_toml(cls, path):
+        """Read a sweep from a TOML file (top-level keys are the constructor's arguments;
+        ``kind = "dnf"`` makes a :class:`DNFSweep` of the other keys).
 
         ``path`` may also be the name of a bundled sweep (:func:`bundled_sweeps`), e.g.
         ``"study600"``, when no file of that name exists.
@@ -338,6 +351,9 @@ class DNFSweep:
         if not isinstance(self.normal_source, str):
             raise ValidationError(f"normal_source must be a str (see generate_rotation_dataset), got "
                                   f"{type(self.normal_source).__name__}")
+
+    from_dict = Sweep.__dict__["from_dict"]
+    from_toml = Sweep.__dict__["from_toml"]
 
     def trials(self) -> list:
         """Every trial's parameters (with ``kind = "dnf"`` and ``trial_id``), in a fixed order."""
