@@ -194,3 +194,65 @@ def test_a_dnf_sweep_from_toml_runs_through_the_command(tmp_path, capsys):
     spec.write_text('kind = "maps"\n')
     with pytest.raises(ValidationError, match="kind"):
         Sweep.from_toml(spec)
+
+
+class _CountingThreads:
+    """A thread pool that counts the trials it finished (whatever became of their rows)."""
+
+    def __init__(self, n):
+        import concurrent.futures as cf
+        import threading
+
+        self.pool = cf.ThreadPoolExecutor(n)
+        self.finished = []
+        self.lock = threading.Lock()
+
+    def submit(self, fn, params):
+        def run():
+            row = fn(params)
+            with self.lock:
+                self.finished.append(row["trial_id"])
+            return row
+
+        return self.pool.submit(run)
+
+
+def test_an_interrupt_records_the_trials_that_were_running(tmp_path):
+    import _thread
+    import threading
+
+    trials = Sweep(meshes=["cereal"], estimators=[{"name": "pf", "n_particles": 20000}], contacts=[10],
+                   seeds=12).trials()
+    out = tmp_path / "r.csv"
+    ex = _CountingThreads(2)
+
+    def interrupt_after_the_first_row():
+        while not (out.exists() and len(_data_lines(out)) >= 1):
+            time.sleep(0.01)
+        _thread.interrupt_main()  # a KeyboardInterrupt in the thread running run_sweep
+
+    threading.Thread(target=interrupt_after_the_first_row, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(trials, out, executor_obj=ex, parquet=False)
+    ex.pool.shutdown(wait=True)
+    rows = read_results(out)
+    # every trial that finished is in the file; the ones never started were cancelled
+    assert sorted(r["trial_id"] for r in rows) == sorted(ex.finished)
+    assert 1 <= len(rows) < len(trials)
+    # and the same call again runs exactly the others
+    again = _CountingThreads(2)
+    rows = run_sweep(trials, out, executor_obj=again, parquet=False)
+    again.pool.shutdown(wait=True)
+    assert sorted(again.finished) == sorted(set(t["trial_id"] for t in trials) - set(ex.finished))
+    assert len(rows) == len(trials)
+
+
+def test_the_toml_examples_of_the_docs_are_valid_sweeps():
+    import re
+
+    tomllib = pytest.importorskip("tomllib")
+    text = (Path(__file__).resolve().parent.parent / "docs" / "experiments.md").read_text()
+    blocks = re.findall(r"```toml\n(.*?)```", text, re.S)
+    assert len(blocks) >= 3
+    sizes = [len(Sweep.from_dict(tomllib.loads(b)).trials()) for b in blocks]
+    assert sizes[0] == 600 and all(n > 0 for n in sizes)
