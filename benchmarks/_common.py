@@ -74,21 +74,27 @@ def run_trials(name: str, trials: list, quick: bool):
     resuming was asked for (``run.py --resume``: continue an interrupted benchmark; rows
     of trials with the same parameters are then taken as they are).
     """
-    from touchloc.experiments import run_sweep
+    from touchloc.experiments import read_results, run_sweep
 
     path = RESULTS / f"{name}{'-quick' if quick else ''}.csv"
     workers = SWEEP["workers"] or (1 if SWEEP["executor"] == "serial" else os.cpu_count())
+    ids = {t["trial_id"] for t in trials}
+    before = {r["trial_id"] for r in read_results(path)} & ids if SWEEP["resume"] and path.exists() else set()
     t0 = time.perf_counter()
     rows = run_sweep(trials, path, executor_spec=SWEEP["executor"], workers=workers, resume=SWEEP["resume"],
                      parquet=False)
     wall = time.perf_counter() - t0
-    ids = {t["trial_id"] for t in trials}
     rows = [r for r in rows if r["trial_id"] in ids]
-    busy = sum(r["time"] for r in rows)
+    busy = sum(r["time"] for r in rows if r["trial_id"] not in before)
     setup = "; meshes and models built once per worker before the first trial" if "mesh" in trials[0] else ""
+    ran = len(rows) - len(before)
     how = (f"{len(rows)} trials run as one sweep (`touchloc.experiments.run_sweep`, executor "
-           f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread{setup}): "
-           f"{wall:.0f} s wall for {busy:.0f} s of estimator time ({busy / wall:.2f} trials' worth of estimator "
-           f"work at once). Tidy rows: "
-           f"`{path.relative_to(RESULTS.parent.parent)}`" + (" (`touchloc report` draws them)." if setup else "."))
+           f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread{setup})")
+    if before:
+        how += f"; {len(before)} of them taken from an earlier, interrupted run (`--resume`)"
+    if ran:
+        how += (f": {wall:.0f} s wall for {busy:.0f} s of estimator time in the {ran} trials run now "
+                f"({busy / wall:.2f} trials' worth of estimator work at once)")
+    how += f". Tidy rows: `{path.relative_to(RESULTS.parent.parent)}`" + (" (`touchloc report` draws them)." if setup
+                                                                          else ".")
     return rows, how
