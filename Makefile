@@ -19,6 +19,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
+# the localisation, planning, identification and DNF sweeps run on a process pool, one worker
+# per core (BENCH_ARGS="--executor dask --workers 8" to move them; --resume after an interrupt)
 bench: $(STAMP)
 	$(PY) benchmarks/run.py $(BENCH_ARGS)
 

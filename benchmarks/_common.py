@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -52,3 +54,47 @@ def big_bunny():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return MeshObject(trimesh.Trimesh(v, f), name="bunny-58k")
+
+
+# -- sweeps ------------------------------------------------------------------------------
+#: how the benchmarks run their trials: ``touchloc.experiments.run_sweep`` on this executor
+#: ("processes": a pool of one single-threaded worker per core). benchmarks/run.py sets these
+#: from its --executor, --workers and --resume options.
+SWEEP = {"executor": os.environ.get("TOUCHLOC_BENCH_EXECUTOR", "processes"),
+         "workers": int(os.environ.get("TOUCHLOC_BENCH_WORKERS", "0")) or None,
+         "resume": os.environ.get("TOUCHLOC_BENCH_RESUME", "") == "1"}
+#: where the tidy results of the benchmark sweeps go (one CSV per benchmark)
+RESULTS = Path(__file__).resolve().parent.parent / "out" / "bench"
+
+
+def run_trials(name: str, trials: list, quick: bool):
+    """Run a benchmark's trials as a sweep; returns (rows, a sentence saying how they ran).
+
+    The rows stream to ``out/bench/<name>[-quick].csv``. The file starts afresh unless
+    resuming was asked for (``run.py --resume``: continue an interrupted benchmark; rows
+    of trials with the same parameters are then taken as they are).
+    """
+    from touchloc.experiments import read_results, run_sweep
+
+    path = RESULTS / f"{name}{'-quick' if quick else ''}.csv"
+    workers = SWEEP["workers"] or (1 if SWEEP["executor"] == "serial" else os.cpu_count())
+    ids = {t["trial_id"] for t in trials}
+    before = {r["trial_id"] for r in read_results(path)} & ids if SWEEP["resume"] and path.exists() else set()
+    t0 = time.perf_counter()
+    rows = run_sweep(trials, path, executor_spec=SWEEP["executor"], workers=workers, resume=SWEEP["resume"],
+                     parquet=False)
+    wall = time.perf_counter() - t0
+    rows = [r for r in rows if r["trial_id"] in ids]
+    busy = sum(r["time"] for r in rows if r["trial_id"] not in before)
+    setup = "; meshes and models built once per worker before the first trial" if "mesh" in trials[0] else ""
+    ran = len(rows) - len(before)
+    how = (f"{len(rows)} trials run as one sweep (`touchloc.experiments.run_sweep`, executor "
+           f"\"{SWEEP['executor']}\", {workers} worker{'s' if workers > 1 else ''}, each on one thread{setup})")
+    if before:
+        how += f"; {len(before)} of them taken from an earlier, interrupted run (`--resume`)"
+    if ran:
+        how += (f": {wall:.0f} s wall for {busy:.0f} s of estimator time in the {ran} trials run now "
+                f"({busy / wall:.2f} trials' worth of estimator work at once)")
+    how += f". Tidy rows: `{path.relative_to(RESULTS.parent.parent)}`" + (" (`touchloc report` draws them)." if setup
+                                                                          else ".")
+    return rows, how

@@ -101,6 +101,8 @@ _AXES = [("normals per finger", "normals_per_contact", [1, 2, 4, 12, 40]),
          ("odometry bias", "bias", [0.0, None, 0.1]),
          ("slip per regrasp (deg)", "slip", [0.0, 1.5, 3.0])]
 _SWEEP_OBJECTS = [("4-gon", 4), ("5-gon", 5), ("6-gon", 6), ("8-gon", 8), ("round", 0)]
+#: the estimators of the sweep (touchloc.dnf.compare.default_estimators, made with rng=0)
+DNF_NAMES = ("histogram", "memory, uncorrected", "DNF, corrected", "particle filter")
 
 
 def _cell_kwargs(cell):
@@ -117,8 +119,8 @@ def _cell_label(cell):
 
 
 def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "") -> str:
-    from touchloc.dnf import generate_rotation_dataset
-    from touchloc.dnf.compare import default_estimators, run_estimator
+    from _common import run_trials
+    from touchloc.experiments import DNFSweep
 
     cells, seen = [], set()
     for _, key, values in _AXES:
@@ -130,20 +132,22 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
                 cells.append(c)
     n_sets = n_sets or (1 if quick else 2)
     revolutions = 3.0 if quick else 4.0
-    makers = default_estimators(rng=0)
-    names = list(makers)
+    # one trial per (cell, object, data set, estimator), all on the process pool
+    sweep = DNFSweep(sides=[n for _, n in _SWEEP_OBJECTS], estimators=list(DNF_NAMES), sets=n_sets, seed=seed,
+                     revolutions=revolutions, normal_source="pad",
+                     cells=[dict(normals_per_contact=c["normals_per_contact"], noise_deg=c["noise"], drop=c["drop"],
+                                 bias=(0.04, 0.08) if c["bias"] is None else c["bias"], slip_deg=c["slip"])
+                            for c in cells])
     t0 = time.perf_counter()
+    results, how = run_trials(f"dnf-sweep-{seed}", sweep.trials(), quick)
+    names = list(DNF_NAMES)
     rows = []
     worst = {}
     pf_vs_dnf = []
     for ci, cell in enumerate(cells):
         acc = {name: {} for name in names}
-        for oi, (oname, n) in enumerate(_SWEEP_OBJECTS):
-            for i in range(n_sets):
-                ds = generate_rotation_dataset(n, revolutions=revolutions, rng=np.random.default_rng([seed, ci, oi, i]),
-                                               **_cell_kwargs(cell))
-                for name in names:
-                    acc[name].setdefault(oname, []).append(run_estimator(name, makers[name], ds).accuracy)
+        for r in sorted((r for r in results if r["cell"] == ci), key=lambda r: (r["object"], r["set"])):
+            acc[r["estimator"]].setdefault(_SWEEP_OBJECTS[r["object"]][0], []).append(r["accuracy"])
         dnf = {o: float(np.mean(v)) for o, v in acc["DNF, corrected"].items()}
         means = {name: float(np.mean([np.mean(v) for v in acc[name].values()])) for name in names}
         pf8 = float(np.mean(acc["particle filter"]["8-gon"]))
@@ -162,7 +166,7 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
             "noise, 10 % dropped samples, 4-8 % odometry under-estimate, 1.5 deg slip per regrasp); every "
             "estimator keeps its default parameters in every cell. Cells are \"normals per finger / noise "
             "(deg) / dropped / odometry bias / slip (deg)\". Entries are the fraction of second-half "
-            f"samples with the right side count (round: 0). {dt:.0f} s for the sweep.", "",
+            f"samples with the right side count (round: 0). {dt:.0f} s for the sweep. {how}", "",
             "| cell | DNF 4-gon | DNF 5-gon | DNF 6-gon | DNF 8-gon | DNF round | DNF mean | memory, "
             "uncorrected | histogram | particle filter | PF 8-gon |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]

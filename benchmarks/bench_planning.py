@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 
 import numpy as np
 
-from _common import quiet_load, table
-from touchloc.planners import OneStepPlanner, RandomPlanner, TwoStepPlanner, simulate
-from touchloc.planners.loop import SimulatedWorld, active_localization
+from _common import quiet_load, run_trials, table
+from touchloc.experiments import Sweep
+from touchloc.planners import OneStepPlanner, TwoStepPlanner, simulate
 from touchloc.planners.scenarios import SETTINGS, make_scenario
 
 TITLE = "Active touch planning"
@@ -19,38 +20,25 @@ GOAL = 0.005        # ADD-S (m) that counts as localised
 CONFIDENCE = 0.003  # stop when the belief's expected ADD-S is below this (m)
 
 
-def _planners(model):
-    return {
-        "random": RandomPlanner(model),
-        "one-step": OneStepPlanner(model),
-        "two-step": TwoStepPlanner(model, branch=3),
-    }
+def sweep(setting: str, n_poses: int, max_touches: int, n_particles: int, names) -> Sweep:
+    """Every planner on the same hidden poses: ``n_poses`` spread over the meshes, in order."""
+    meshes = MESHES[:n_poses] if n_poses < len(MESHES) else MESHES
+    planners = [{"name": "two-step", "branch": 3} if n == "two-step" else n for n in names]
+    return Sweep(meshes=meshes, modes=["active"], planners=planners, contacts=[max_touches],
+                 seeds=max(1, n_poses // len(meshes)), region="planar" if setting == "planar" else "full",
+                 loop={"n_particles": n_particles, "confidence": CONFIDENCE},
+                 noise=[0.001], normal_noise=0.05, sigma_pos=0.002, sigma_nor=0.15, success=GOAL)
 
 
-def _run_setting(setting, n_poses, max_touches, n_particles, names):
-    """Every planner on the same hidden poses; returns per planner a list of run records."""
+def _records(rows, sw: Sweep, names):
+    """Per planner, one record per run (in the sweep's mesh and seed order)."""
+    ids = {t["trial_id"] for t in sw.trials()}
     recs = {k: [] for k in names}
-    scen = {m: make_scenario(quiet_load(m), setting, seed=0) for m in MESHES}
-    for i in range(n_poses):
-        mesh = MESHES[i % len(MESHES)]
-        sc = scen[mesh]
-        true = sc.hidden_pose(rng=1000 + i)
-        planners = _planners(sc.model)
-        for name in names:
-            world = SimulatedWorld(sc.obj, true, rng=2000 + i)
-            t0 = time.perf_counter()
-            res = active_localization(world, sc.model, sc.region, planners[name], sc.candidates,
-                                      n_particles=n_particles, max_touches=max_touches, confidence=CONFIDENCE,
-                                      rng=3000 + i)
-            dt = time.perf_counter() - t0
-            ok = res.confident and res.error < GOAL
-            T = res.steps[-1].map_pose
-            pts, _, _ = sc.obj.sample_surface(500, rng=0)
-            add = float(np.linalg.norm(pts @ T[:3, :3].T + T[:3, 3] - (pts @ true[:3, :3].T + true[:3, 3]),
-                                       axis=1).mean())
-            recs[name].append({"mesh": mesh, "touches": res.touches, "ok": ok, "confident": res.confident,
-                               "error": res.error, "add": add, "time": dt,
-                               "plan_time": float(np.mean([s.plan_time for s in res.steps[1:]] or [0.0]))})
+    for r in sorted((r for r in rows if r["trial_id"] in ids), key=lambda r: (r["seed"], MESHES.index(r["mesh"]))):
+        m = json.loads(r["metrics"])
+        recs[r["planner"]].append({"mesh": r["mesh"], "touches": r["touches"], "ok": m["confident"] and r["success"],
+                                   "confident": m["confident"], "error": r["add_s"], "add": m["add"],
+                                   "time": r["time"], "plan_time": r["plan_time"]})
     return recs
 
 
@@ -135,18 +123,24 @@ def run(quick: bool = False) -> str:
     names = ["random", "one-step", "two-step"]
     out = []
     rows, mesh_tables = [], []
-    for setting, n_particles in (("planar", 2000), ("6dof", 2000 if quick else 3000)):
-        recs = _run_setting(setting, n_poses, max_touches, n_particles, names)
+    sweeps = {setting: sweep(setting, n_poses, max_touches, n_particles, names)
+              for setting, n_particles in (("planar", 2000), ("6dof", 2000 if quick else 3000))}
+    results, how = run_trials("planning", [t for sw in sweeps.values() for t in sw.trials()], quick)
+    for setting, sw in sweeps.items():
+        recs = _records(results, sw, names)
         rows += _touch_table(setting, recs, max_touches)
         mesh_tables.append((setting, _per_mesh(recs)))
     ptab, pnote = _planning_time(quick)
+    if quick:
+        out.append("**Quick run** (`--quick`: 4 hidden poses, at most 15 touches; a smoke test of the "
+                   "benchmark, not its result).")
     out.append(
         f"Touches until the belief is confident (its expected ADD-S of the estimate < {CONFIDENCE * 1e3:.0f} mm), "
         f"at most {max_touches}; a run **localises** when it stops confident with a true ADD-S < "
-        f"{GOAL * 1e3:.0f} mm (ADD-S to the surface: see `touchloc.planners.metrics.add_s`; ADD, the "
+        f"{GOAL * 1e3:.0f} mm (ADD-S to the surface: see `touchloc.belief.add_s`; ADD, the "
         f"plain mean point distance, is reported too but counts symmetric poses of the can, lemon and "
-        f"boxes as errors). Hidden poses drawn uniformly from the region, cycling through the bundled "
-        f"meshes ({', '.join(MESHES)}); every planner sees the same hidden poses and the same candidates "
+        f"boxes as errors). Hidden poses drawn uniformly from the region, the same number on each "
+        f"mesh ({', '.join(MESHES)}; the first four in a quick run); every planner sees the same hidden poses and the same candidates "
         f"(60 world-fixed touches plus 40 aimed at the faces of the current estimate). Simulated sensor: "
         f"1 mm contact noise, 0.05 normal noise; belief: tempered SMC touch filter "
         f"(2000 particles planar, 3000 6-DOF), proximity model sigma 2 mm / 0.15; planners: one-step "
@@ -154,7 +148,10 @@ def run(quick: bool = False) -> str:
         f"expanded, 6 then 3 canonical observations), random choice among the same candidates. "
         f"Runs that never get "
         f"confident count as {max_touches} touches, so the ratios to random are conservative. "
-        f"Settings: " + "; ".join(f"**{k}**: {v}" for k, v in SETTINGS.items()) + ".")
+        f"Settings: " + "; ".join(f"**{k}**: {v}" for k, v in SETTINGS.items()) + ". "
+        f"Each run is one active trial of a sweep; times are per run on one core (pool workers run "
+        f"the compiled kernels on one thread, all workers at once).")
+    out.append(how)
     out.append(table(["setting", "planner", "runs", "localised", "touches (mean)", "touches (median)",
                       "touches / random", "minus one-step, same poses (mean +- s.e.)", "final ADD-S median (mm)", "final ADD median (mm)", "plan time per touch (s)",
                       "run time (s)"], rows))
@@ -163,7 +160,7 @@ def run(quick: bool = False) -> str:
                    f"final errors.")
         out.append(table(["mesh"] + names + ["one-step ADD-S / ADD median (mm)"], mrows))
     out.append("Planning time (mug, planar region, uniform belief of 1000 particles, 60 world + 40 relative "
-               "candidates):")
+               "candidates; in this process, after the sweep, with the kernels' default threads):")
     out.append(ptab)
     out.append(pnote)
     return "\n\n".join(out)

@@ -7,6 +7,12 @@ measured in the same run). Usage::
     python benchmarks/run.py            # full runs
     python benchmarks/run.py --quick    # small sizes, a few minutes
     python benchmarks/run.py --only models dnf
+    python benchmarks/run.py --only localization --executor dask --workers 4
+
+The localisation, planning and identification benchmarks are sweeps
+(``touchloc.experiments``): their trials run on a process pool, one single-threaded
+worker per core (``--executor``, ``--workers``), and their tidy rows go to
+``out/bench/NAME.csv``; ``--resume`` continues an interrupted run from those files.
 """
 
 from __future__ import annotations
@@ -52,7 +58,16 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     ap.add_argument("--only", nargs="*", help="module suffixes to run (e.g. models dnf)")
     ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--executor", default="processes",
+                    help="how sweep benchmarks run their trials: processes (default), serial, dask, dask://HOST:PORT")
+    ap.add_argument("--workers", type=int, default=None, help="sweep workers (default: all cores)")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the rows already in out/bench/*.csv (an interrupted run) instead of starting afresh")
     args = ap.parse_args(argv)
+    # read by benchmarks/_common.py (the modules import it fresh below)
+    os.environ["TOUCHLOC_BENCH_EXECUTOR"] = args.executor
+    os.environ["TOUCHLOC_BENCH_WORKERS"] = str(args.workers or 0)
+    os.environ["TOUCHLOC_BENCH_RESUME"] = "1" if args.resume else ""
     mods = sorted(HERE.glob("bench_*.py"))
     if args.only:
         mods = [m for m in mods if m.stem[len("bench_"):] in args.only]
@@ -67,6 +82,8 @@ def main(argv=None) -> int:
         body = mod.run(quick=args.quick)
         dt = time.perf_counter() - t0
         cmd = f"python benchmarks/run.py --only {path.stem[6:]}" + (" --quick" if args.quick else "")
+        if args.executor != "processes" or args.workers:
+            cmd += f" --executor {args.executor}" + (f" --workers {args.workers}" if args.workers else "")
         stamp = _dt.date.today().isoformat()
         new[path.stem] = (f"<!-- bench: {path.stem} -->\n## {mod.TITLE}\n\n_Measured {stamp} on {machine()}; "
                                f"`{cmd}` ({dt:.0f} s)._\n\n{body.strip()}\n")

@@ -2,14 +2,15 @@
 
 import csv
 import concurrent.futures as cf
+import json
 
 import numpy as np
 import pytest
 
 from touchloc.cli import main
 from touchloc.errors import ValidationError
-from touchloc.experiments import (COLUMNS, SerialExecutor, Sweep, cache_info, executor, read_results, run_sweep,
-                                  run_trial)
+from touchloc.experiments import (COLUMNS, TIME_COLUMNS, SerialExecutor, Sweep, cache_info, executor, read_results,
+                                  run_sweep, run_trial)
 
 # tiny and fast: 30 contacts, small meshes, importance sampling with few particles
 SMALL = dict(meshes=["cereal", "milk"], estimators=[{"name": "pf", "n_particles": 1500}], contacts=[30],
@@ -17,12 +18,15 @@ SMALL = dict(meshes=["cereal", "milk"], estimators=[{"name": "pf", "n_particles"
 
 
 def _same(a, b):
-    """Tables equal in every column but the wall time."""
+    """Tables equal in every column but the wall times."""
+    from touchloc.experiments.runner import same_tables
+
     assert [r["trial_id"] for r in a] == [r["trial_id"] for r in b]
     for ra, rb in zip(a, b):
         for c in COLUMNS:
-            if c != "time":
+            if c not in TIME_COLUMNS:
                 assert ra[c] == rb[c], (c, ra[c], rb[c])
+    assert same_tables(a, b)
 
 
 def test_grid_from_toml_and_validation(tmp_path):
@@ -50,7 +54,8 @@ def test_grid_from_toml_and_validation(tmp_path):
 def test_a_trial_is_a_pure_function_of_its_parameters():
     p = Sweep(**SMALL).trials()[0]
     a, b = run_trial(p), run_trial(dict(p))
-    assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}
+    assert {k: v for k, v in a.items() if k not in TIME_COLUMNS} == {k: v for k, v in b.items() if k not in TIME_COLUMNS}
+    assert a["plan_time"] == 0.0 and set(json.loads(a["metrics"])) == {"in90_pose"}
     assert 0 <= a["add_s"] < 0.2 and a["touches"] == 30
     assert a["cov50"] <= a["cov90"] <= a["cov95"]        # nested credible regions
     # another seed is another trial
@@ -157,7 +162,7 @@ def test_an_active_trial_runs_the_planning_loop_and_repeats():
     a, b = run_trial(p), run_trial(p)
     assert a["mode"] == "active" and a["estimator"] == "smc" and a["planner"] == "random"
     assert 1 <= a["touches"] <= 2
-    assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}
+    assert {k: v for k, v in a.items() if k not in TIME_COLUMNS} == {k: v for k, v in b.items() if k not in TIME_COLUMNS}
 
 
 def test_the_smc_filter_runs_as_a_static_estimator_in_a_sweep():
@@ -165,4 +170,4 @@ def test_the_smc_filter_runs_as_a_static_estimator_in_a_sweep():
               seeds=[2]).trials()[0]
     a, b = run_trial(p), run_trial(p)
     assert a["estimator"] == "smc" and a["touches"] == 10 and np.isfinite(a["add_s"])
-    assert {k: v for k, v in a.items() if k != "time"} == {k: v for k, v in b.items() if k != "time"}
+    assert {k: v for k, v in a.items() if k not in TIME_COLUMNS} == {k: v for k, v in b.items() if k not in TIME_COLUMNS}

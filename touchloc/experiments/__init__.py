@@ -1,16 +1,19 @@
 """Experiments at scale: sweeps of localisation trials on any Executor (Dask too).
 
-A :class:`Sweep` is a grid (meshes x estimators x contact counts x noise x seeds, passive
-or active); :func:`run_trial` runs one trial as a pure function of its parameters;
+A :class:`Sweep` is a grid (meshes x estimators x contact counts x noise x seeds: passive
+localisation, active localisation by planned touches, or identification of the touched
+mesh); a :class:`DNFSweep` is a grid of orientation-tracking trials on rotating n-gons;
+:func:`run_trial` runs one trial as a pure function of its parameters;
 :func:`run_sweep` runs the missing trials of a sweep through an executor (serial, a
 process pool, a Dask ``LocalCluster`` or an existing Dask scheduler) and streams one row
 per trial to a CSV file, so an interrupted sweep resumes where it stopped.
 """
 
 from .runner import COLUMNS, SerialExecutor, executor, read_results, run_sweep, summarize, write_parquet
-from .sweep import ESTIMATORS, PLANNERS, Sweep, trial_id
-from .trial import RESULT_COLUMNS, cache_info, clear_cache, run_trial
+from .sweep import DNF_ESTIMATORS, ESTIMATORS, LOOP_OPTIONS, MODES, PLANNERS, DNFSweep, Sweep, bundled_sweeps, trial_id
+from .trial import DNF_COLUMNS, RESULT_COLUMNS, TIME_COLUMNS, cache_info, clear_cache, run_trial
 
-__all__ = ["Sweep", "run_trial", "run_sweep", "executor", "SerialExecutor", "read_results", "write_parquet",
-           "summarize", "trial_id", "cache_info", "clear_cache", "COLUMNS", "RESULT_COLUMNS", "ESTIMATORS",
-           "PLANNERS"]
+__all__ = ["Sweep", "DNFSweep", "run_trial", "run_sweep", "executor", "SerialExecutor", "read_results", "write_parquet",
+           "summarize", "trial_id", "bundled_sweeps", "cache_info",
+           "clear_cache", "COLUMNS", "RESULT_COLUMNS", "TIME_COLUMNS", "ESTIMATORS", "PLANNERS", "MODES",
+           "LOOP_OPTIONS", "DNF_COLUMNS", "DNF_ESTIMATORS"]

@@ -12,20 +12,27 @@ __all__ = ["markdown_table", "plot_results", "write_report"]
 
 
 def _label(r) -> str:
+    where = "" if r["region"] == "full" else f" ({r['region']})"
     if r["mode"] == "active":
-        return f"active {r['planner']}"
-    return r["estimator"] + ("" if r["options"] in ("", "{}") else f" {r['options']}")
+        return f"active {r['planner']}{where}"
+    if r["mode"] == "identify":
+        return f"identify (success: the right mesh){where}"
+    return r["estimator"] + ("" if r["options"] in ("", "{}") else f" {r['options']}") + where
 
 
 def markdown_table(rows) -> str:
-    """One line per (mode, estimator, planner, mesh, contacts): success, ADD-S, time, touches, coverage."""
+    """One line per (mode, estimator, planner, region, mesh, contacts): success, ADD-S, time, touches, coverage.
+
+    The mesh cell names the region when it is not "full".
+    """
     head = ("mode", "estimator", "mesh", "contacts", "trials", "success", "median ADD-S (mm)", "median time (s)",
             "median touches", "coverage 50 / 90 / 95 %")
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for s in summarize(rows):
+    for s in summarize(rows, by=("mode", "estimator", "planner", "region", "mesh", "contacts")):
         est = s["estimator"] + (f" + {s['planner']}" if s["planner"] else "")
+        mesh = s["mesh"] + ("" if s["region"] == "full" else f" ({s['region']})")
         out.append("| " + " | ".join([
-            s["mode"], est, s["mesh"], str(s["contacts"]), str(s["trials"]), f"{100 * s['success']:.0f} %",
+            s["mode"], est, mesh, str(s["contacts"]), str(s["trials"]), f"{100 * s['success']:.0f} %",
             f"{1e3 * s['median_add_s']:.2f}", f"{s['median_time']:.2f}", f"{s['median_touches']:.0f}",
             f"{100 * s['cov50']:.0f} / {100 * s['cov90']:.0f} / {100 * s['cov95']:.0f}"]) + " |")
     return "\n".join(out)
