@@ -159,6 +159,13 @@ class TrackerParams:
     map: FieldParams = FieldParams(tau=8.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
                                    c_inh=0.2, sigma_inh=np.radians(12.0))
     surface_to_map: float = 10.0
+    #: hand field: the map field's twin over the hand's (world) frame, fed by the detected
+    #: sides moved into that frame. A contact that holds still against the hand while the
+    #: object turns (a round object's normal points at the finger) builds a peak here, and
+    #: that peak inhibits the map field at the same place (0: no hand field)
+    hand: FieldParams = FieldParams(tau=8.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
+                                    c_inh=0.2, sigma_inh=np.radians(12.0))
+    hand_to_map: float = 0.0
     memory_to_map: float = 2.0
     memory_tau: float = 1.0
     memory_build: float = 0.2
@@ -186,6 +193,9 @@ class TrackerParams:
     rate_gain: float = 0.01
     #: whether the estimate is corrected (False: the "memory trace without correction")
     correct: bool = True
+    #: a sample without contact leaves every field as it is (True) instead of letting
+    #: them relax towards rest (False)
+    hold_empty: bool = False
 
     def with_(self, **changes) -> "TrackerParams":
         """A copy with some parameters changed."""
@@ -239,8 +249,8 @@ class OrientationTracker:
         as_count(p.n_sites, "n_sites", min=16, max=3000, why="the comparison field holds n_sites^2 sites")
         for f in TrackerParams.__dataclass_fields__:
             v = getattr(p, f)
-            if f == "correct":
-                as_bool(v, "correct")
+            if f in ("correct", "hold_empty"):
+                as_bool(v, f)
             elif isinstance(getattr(TrackerParams, f, None), FieldParams):
                 as_instance(v, FieldParams, f)
             elif f != "n_sites":
@@ -252,6 +262,7 @@ class OrientationTracker:
         self.angles = site_angles(n)
         self.surface = Field1D(n, p.surface)
         self.map = Field1D(n, p.map)
+        self.hand = Field1D(n, p.hand)
         self.trace = MemoryTrace(n, tau=p.memory_tau, build=p.memory_build, decay=p.memory_decay)
         self.match = Field1D(n, p.match)
         self.comparison = Field2D((n, n), p.comparison)
@@ -292,7 +303,7 @@ class OrientationTracker:
 
     def reset(self) -> None:
         """Forget everything: fields at rest, empty memory, no correction."""
-        for f in (self.surface, self.map, self.match, self.comparison, self.error):
+        for f in (self.surface, self.map, self.hand, self.match, self.comparison, self.error):
             f.reset()
         self.trace.reset()
         self._evidence[:] = 0.0
@@ -332,6 +343,10 @@ class OrientationTracker:
         if p.rate_gain and self._last_odo is not None:
             self.correction += self._rate * (self.odometry - self._last_odo)
         self._last_odo = self.odometry
+        if p.hold_empty and a.size == 0:
+            self.last_error = 0.0
+            self.n_steps += 1
+            return
         # input stage: mean code in the object frame (corrected estimate), averaged over
         # the evidence window; an empty sample only lets the evidence leak
         self._evidence *= self._leak
@@ -344,7 +359,13 @@ class OrientationTracker:
         # mapping pathway
         f_s = self.surface.step(stim)
         P = self.trace.P
-        f_m = self.map.step(p.surface_to_map * f_s + p.memory_to_map * P)
+        drive = p.surface_to_map * f_s + p.memory_to_map * P
+        if p.hand_to_map:
+            # world angle = object-frame angle + orientation: a shift by whole sites
+            shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
+            f_h = self.hand.step(p.surface_to_map * np.roll(f_s, shift))
+            drive = drive - p.hand_to_map * np.roll(f_h, -shift)
+        f_m = self.map.step(drive)
         self.trace.step(f_m)
         # tracking pathway: match field pulled towards remembered sides
         broad = circular_convolve(f_s, self._match_blur_fft, self.n_sites)
