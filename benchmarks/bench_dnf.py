@@ -61,7 +61,14 @@ def _timing(quick: bool) -> str:
     for name, t in times.items():
         lines.append(f"| {name} | {np.median(t) * 1e3:.3f} ms | {np.percentile(t, 95) * 1e3:.3f} ms | "
                      f"{t.mean() * 1e3:.3f} ms | {base / np.median(t):.2f}x |")
-    full = times[makers[0][0]]
+    # the full tracker on the sweep's base cell too (seed-faithful: 2 pad normals per finger)
+    sf = generate_rotation_dataset(6, revolutions=2 if quick else 4, rng=123, **_cell_kwargs(_BASE))
+    t = _step_times(makers[0][1], sf, repeats)
+    name = "DNF tracker, full, on the sweep's base cell (2 pad normals per finger, 10 % empty samples)"
+    times[name] = t
+    lines.append(f"| {name} | {np.median(t) * 1e3:.3f} ms | {np.percentile(t, 95) * 1e3:.3f} ms | "
+                 f"{t.mean() * 1e3:.3f} ms | {base / np.median(t):.2f}x |")
+    full = np.concatenate([times[makers[0][0]], t])
     verdict = "meets" if np.median(full) <= 1e-3 else "misses"
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines += ["", f"The full tracker step {verdict} the 1 ms target: median {np.median(full) * 1e3:.3f} ms, "
@@ -144,6 +151,7 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
     rows = []
     worst = {}
     pf_vs_dnf = []
+    worst_obj, base_acc = {}, []
     for ci, cell in enumerate(cells):
         acc = {name: {} for name in names}
         for r in sorted((r for r in results if r["cell"] == ci), key=lambda r: (r["object"], r["set"])):
@@ -153,11 +161,14 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
         pf8 = float(np.mean(acc["particle filter"]["8-gon"]))
         pf_vs_dnf.append(dnf["8-gon"] - pf8)
         worst[_cell_label(cell)] = min(dnf.values())
+        worst_obj[_cell_label(cell)] = min(dnf, key=dnf.get)
+        base_acc.append((means["histogram"], means["memory, uncorrected"]))
         rows.append(f"| {_cell_label(cell)} | " + " | ".join(f"{dnf[o]:.0%}" for o, _ in _SWEEP_OBJECTS)
                     + f" | **{means['DNF, corrected']:.0%}** | {means['memory, uncorrected']:.0%} | "
                     f"{means['histogram']:.0%} | {means['particle filter']:.0%} | {pf8:.0%} |")
     dt = time.perf_counter() - t0
     n_ok = sum(w >= 0.9 for w in worst.values())
+    failing = [(lab, w) for lab, w in worst.items() if w < 0.9]
     head = [f"{label}{n_sets} data set(s) per object and cell (seeds `[{seed}, cell, object, i]`), "
             f"{revolutions:g} turns each, generated with "
             "`generate_rotation_dataset(..., normal_source=\"pad\")` (blob-centroid normals of the curved "
@@ -173,6 +184,13 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
     tail = ["", f"The full DNF reaches >= 90 % on every object in {n_ok} of {len(cells)} cells. On the 8-gon "
             f"it is ahead of the particle filter by {np.mean(pf_vs_dnf) * 100:+.0f} points on average over "
             f"the cells (min {min(pf_vs_dnf) * 100:+.0f}, max {max(pf_vs_dnf) * 100:+.0f})."]
+    if failing:
+        tail.append("Cells below 90 % (cell: worst object, its right count): " + "; ".join(
+            f"{lab}: {worst_obj[lab]} {w:.0%}" for lab, w in failing) + ".")
+    h, m = np.array(base_acc).T
+    tail.append(f"The baselines still fail as seed 000 reports: the histogram gets {h.mean():.0%} right on average "
+                f"over the cells (best cell {h.max():.0%}), the uncorrected memory {m.mean():.0%} "
+                f"(best cell {m.max():.0%}).")
     return "\n".join(head + rows + tail)
 
 

@@ -4,7 +4,7 @@ without contact are valid, and the seed-faithful generator's knobs do what they 
 import numpy as np
 import pytest
 
-from touchloc.dnf import (SEED_FAITHFUL, HistogramEstimator, OrientationTracker, ParticleOrientationEstimator,
+from touchloc.dnf import (SEED_FAITHFUL, HistogramEstimator, count_surfaces, OrientationTracker, ParticleOrientationEstimator,
                           generate_rotation_dataset, population_code, save_recording, load_recording)
 from touchloc.errors import ValidationError
 
@@ -45,24 +45,58 @@ def test_evidence_window_averages_to_the_same_input_for_1_and_40_normals():
     assert e1.max() == pytest.approx(e40.max(), rel=0.15)
 
 
+def _turning_sides(tr, n, deg_per_sample=4.0):
+    """Two opposite sides (object frame 0.5 and 0.5 + pi) turned with exact odometry."""
+    for t in range(n):
+        theta = deg_per_sample * DEG * t
+        tr.step(np.array([0.5, 0.5 + np.pi]) + theta, theta)
+    return theta
+
+
 def test_a_sample_without_contact_is_valid():
     tr = OrientationTracker()
-    for _ in range(40):                           # the slow map field has formed its peaks
-        tr.step([0.5, 0.5 + np.pi], 0.0)
-    assert tr.memory.max() > 0.9
+    theta = _turning_sides(tr, 40)
+    assert tr.memory.max() > 0.9 and count_surfaces(tr.memory) == 2
+    u, mem, corr = tr.surface.u.copy(), tr.memory.copy(), tr.correction
+    # follows the odometry (at the learnt rate)
+    assert tr.step([], theta + 0.1) == pytest.approx(theta + 0.1 + corr + 0.1 * tr.rate, abs=1e-12)
+    np.testing.assert_array_equal(tr.surface.u, u)                        # no evidence: nothing changes
+    np.testing.assert_array_equal(tr.memory, mem)
+    # the fields may relax instead (hold_empty=False); the memory keeps its shape
+    tr = OrientationTracker(hold_empty=False)
+    theta = _turning_sides(tr, 40)
     u = tr.surface.u.copy()
-    assert tr.step([], 0.0) == pytest.approx(tr.orientation)
-    assert tr.surface.u.max() < u.max()           # no input: the surface peak relaxes
+    tr.step(np.empty(0), theta)
+    assert tr.surface.u.max() < u.max()
     mem = tr.memory.copy()
-    tr.step(np.empty(0), 0.0)
-    assert np.abs(tr.memory - mem).max() < 0.05   # the memory keeps its shape
+    tr.step(np.empty(0), theta)
+    assert np.abs(tr.memory - mem).max() < 0.05
     # the baselines accept it too
     assert HistogramEstimator().step([], 0.3) == 0.3
     ParticleOrientationEstimator(20, rng=0).step([], 0.0)
 
 
+def test_hand_field_keeps_a_round_objects_sliding_normal_out_of_the_memory():
+    # a round object: the normals point at the two fingers (fixed in the world frame) while
+    # the object turns 2.5 deg per sample, so they slide through the object frame
+    def round_object(**kw):
+        tr = OrientationTracker(**kw)
+        rng = np.random.default_rng(0)
+        for t in range(200):
+            tr.step(np.repeat([0.0, np.pi], 2) + rng.normal(0.0, 3 * DEG, 4), 2.5 * DEG * t)
+        return tr
+    assert count_surfaces(round_object().memory) == 0
+    assert round_object().memory.max() < 0.3
+    assert count_surfaces(round_object(hand_to_map=0.0).memory) > 0     # without it, phantom sides
+    # flat sides, which turn with the object, are mapped either way
+    for kw in ({}, {"hand_to_map": 0.0}):
+        tr = OrientationTracker(**kw)
+        _turning_sides(tr, 40)
+        assert count_surfaces(tr.memory) == 2
+
+
 def test_with_a_window_an_empty_sample_does_not_dilute_the_evidence():
-    tr = OrientationTracker(input_window=4.0)
+    tr = OrientationTracker(input_window=4.0, hold_empty=False)
     for _ in range(10):
         tr.step([0.5, 0.5 + np.pi], 0.0)
     before = tr._evidence / tr._weight

@@ -19,8 +19,20 @@ evidence window (optional, ``input_window > 0``)
     them (0-68 % right counts on the 8-gon with windows of 4-8 samples, against 88-100 %
     without, with 1-40 normals per finger and 1-6 degrees of noise).
 
-A sample without contact (``K = 0``) is valid: the input is zero (or, with the window,
-the old evidence leaks), the fields relax and the memory keeps its shape.
+A sample without contact (``K = 0``) is valid. By default (``hold_empty``) it changes no
+field: the orientation follows the odometry and everything else waits for the next
+contact. No contact is no evidence, and since the fields live in the object frame, the
+sides they hold have not moved. (Letting the fields relax instead cut a stroke's evidence
+in two at every dropped sample: with 20 % of the samples empty, the 8-gon's memory never
+completed on the development seeds.)
+
+Mapping needs a side to hold still in the object frame for several samples, and the
+normal of a round object does not: it points at the finger, so it holds still against
+the *hand* while the object turns. The hand field, the map field's twin over the world
+frame, is fed by the same detected sides moved into that frame; where it forms a peak (a
+contact that stays put against the hand), it inhibits the map field (``hand_to_map``).
+This lets the map field be fast enough to write a side within one stroke (time constant 5
+samples) without mapping a round object's sliding normal.
 
 Two pathways follow (seed 000, III-B):
 
@@ -152,24 +164,26 @@ class TrackerParams:
     #: surface detection: fast, input driven (no peak without input)
     surface: FieldParams = FieldParams(tau=2.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                        c_inh=0.15, sigma_inh=np.radians(12.0))
-    #: map field (slow: 8 samples, a stroke) and its memory trace (eq. 2). A side holds
+    #: map field (5 samples: most of a stroke) and its memory trace (eq. 2). A side holds
     #: still in the object frame through a stroke and drives it up; the normal of a round
-    #: object, which points at the finger, slides through the object frame and does not
-    #: stay on any site long enough
-    map: FieldParams = FieldParams(tau=8.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
+    #: object, which points at the finger, slides through the object frame (and is held
+    #: back by the hand field below)
+    map: FieldParams = FieldParams(tau=5.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
                                    c_inh=0.2, sigma_inh=np.radians(12.0))
     surface_to_map: float = 10.0
     #: hand field: the map field's twin over the hand's (world) frame, fed by the detected
     #: sides moved into that frame. A contact that holds still against the hand while the
     #: object turns (a round object's normal points at the finger) builds a peak here, and
     #: that peak inhibits the map field at the same place (0: no hand field)
-    hand: FieldParams = FieldParams(tau=8.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
+    hand: FieldParams = FieldParams(tau=5.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
                                     c_inh=0.2, sigma_inh=np.radians(12.0))
-    hand_to_map: float = 0.0
+    hand_to_map: float = 10.0
     memory_to_map: float = 2.0
     memory_tau: float = 1.0
     memory_build: float = 0.2
-    memory_decay: float = 0.0015
+    #: decay where the map field is silent: a peak written while the estimate was still
+    #: off fades within about 250 samples unless the side is touched there again
+    memory_decay: float = 0.004
     #: match field: broad copy of the detected sides plus the memory as pre-shape
     match: FieldParams = FieldParams(tau=1.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                      c_inh=0.2, sigma_inh=np.radians(15.0))
@@ -184,9 +198,10 @@ class TrackerParams:
     error: FieldParams = FieldParams(tau=1.0, h=-3.0, beta=4.0, c_exc=0.3, sigma_exc=np.radians(3.0),
                                      c_glob=0.02)
     comparison_to_error: float = 0.5
-    error_window: float = np.radians(25.0)
-    #: fraction of the read-out error corrected per sample
-    correction_gain: float = 0.25
+    error_window: float = np.radians(15.0)
+    #: fraction of the read-out error corrected per sample (small: with one or two normals
+    #: per finger a single read-out can pair a side with the wrong remembered one)
+    correction_gain: float = 0.15
     #: integral action on the odometry's scale: every read-out error also changes a rate
     #: (correction per radian of odometry) by ``-rate_gain * error``, and the correction
     #: follows the odometry's increments at that rate (0: off)
@@ -194,8 +209,9 @@ class TrackerParams:
     #: whether the estimate is corrected (False: the "memory trace without correction")
     correct: bool = True
     #: a sample without contact leaves every field as it is (True) instead of letting
-    #: them relax towards rest (False)
-    hold_empty: bool = False
+    #: them relax towards rest (False): no contact is no evidence, and the fields live in
+    #: the object frame, where the sides have not moved
+    hold_empty: bool = True
 
     def with_(self, **changes) -> "TrackerParams":
         """A copy with some parameters changed."""
