@@ -148,6 +148,10 @@ def population_code(angles, n_sites: int, width: float, gain: float, *, normaliz
 class TrackerParams:
     """Parameters of :class:`OrientationTracker`; the defaults reproduce seed 000's behaviour.
 
+    One addition to seed 000's architecture is on by default: the hand field
+    (``hand_to_map``), which keeps contacts that hold still against the hand out of the
+    map; ``hand_to_map=0`` removes it.
+
     Time constants are in samples (Euler step ``dt = 1``); kernel strengths are per active
     site; widths in rad.
     """
@@ -364,7 +368,7 @@ class OrientationTracker:
             self.n_steps += 1
             return
         # input stage: mean code in the object frame (corrected estimate), averaged over
-        # the evidence window; an empty sample only lets the evidence leak
+        # the evidence window; an empty sample (without hold_empty) only lets it leak
         self._evidence *= self._leak
         self._weight *= self._leak
         if a.size:
