@@ -1,4 +1,12 @@
-"""Tactile SLAM: mapping an object that moves while it is touched (pushes, in-hand turns)."""
+"""Tactile SLAM: mapping an object that moves while it is touched (pushes, in-hand turns).
+
+Every configuration runs on several seeds: one run's map and drift depend on which touches
+happen to hit early (a hand closing on a 4 cm carton in a 16 cm box often misses), and a
+single seed swung the F-score from 0.50 to 0.90 on the same mesh and settings. Each run is
+also mapped a second time from the same touches at the true poses ("map at true poses"):
+the best a pose estimator could do with those touches, and the "static case" that the
+in-hand goal compares with.
+"""
 
 from __future__ import annotations
 
@@ -15,7 +23,21 @@ def _angle(Ra, Rb):
     return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
 
 
-def _run(obj, mode, use_slam, steps, fingers, seed):
+def _true_pose_map(results, poses, fingers, bounds):
+    """The same touches mapped in the object frame at the true poses (one update per action)."""
+    from touchloc.mapping import ShapeMap
+    from touchloc.mapping.slam import transform_results
+
+    m = ShapeMap(bounds, sigma_pos=0.001, sigma_nor=0.087)
+    for i, T in enumerate(poses):
+        local = transform_results(results[i * fingers:(i + 1) * fingers], np.linalg.inv(T))
+        local = [r for r in local if r.contact is None or not np.any((r.contact.points < m.lo) | (r.contact.points > m.hi))]
+        if local:
+            m.update(local)
+    return m
+
+
+def _run(obj, mode, use_slam, steps, fingers, seed, *, reference=False, scale=True):
     from touchloc.belief import add_s
     from touchloc.mapping import MovingWorld, TactileSLAM, chamfer_distance, explore, fscore
 
@@ -25,7 +47,7 @@ def _run(obj, mode, use_slam, steps, fingers, seed):
         skw = dict(planar=True)
     else:
         wkw = dict(push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05)
-        skw = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)))
+        skw = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)), odometry_scale=scale)
     world = MovingWorld(obj, rng=seed, **wkw)
     t0 = time.perf_counter()
     if use_slam:
@@ -41,8 +63,13 @@ def _run(obj, mode, use_slam, steps, fingers, seed):
     m = run.map.to_mesh()
     drift = np.array([add_s(obj, a, b) for a, b in zip(est, tru)])
     ang = np.array([_angle(a[:3, :3], b[:3, :3]) for a, b in zip(est, tru)])
-    return dict(chamfer=chamfer_distance(m, obj, n=4000), f=fscore(m, obj, 0.005, n=4000), drift=drift, ang=ang,
-                update=np.array([s["update_time"] for s in run.steps]), seconds=dt)
+    out = dict(chamfer=chamfer_distance(m, obj, n=4000), f=fscore(m, obj, 0.005, n=4000), drift=drift, ang=ang,
+               update=np.array([s["update_time"] for s in run.steps]), seconds=dt,
+               scale=slam.odometry_scale if use_slam else 1.0)
+    if reference:
+        ref = _true_pose_map(run.results, tru, fingers, (lo - 0.03, hi + 0.03)).to_mesh()
+        out["f_true"] = fscore(ref, obj, 0.005, n=4000)
+    return out
 
 
 class _Clipped:
@@ -63,34 +90,65 @@ class _Clipped:
         return out
 
 
+def _spread(v, fmt="{:.2f}", k=1.0):
+    """'median (min-max)' of a list of numbers, scaled by k."""
+    v = np.asarray(v, float) * k
+    if len(v) == 1:
+        return fmt.format(v[0])
+    return f"{fmt.format(np.median(v))} ({fmt.format(v.min())}-{fmt.format(v.max())})"
+
+
 def run(quick: bool = False) -> str:
     meshes = ["milk", "cereal"] if quick else ["milk", "cereal", "bread", "mug"]
+    push_seeds = (0, 1) if quick else (0, 1, 2)
+    hand_seeds = (1, 2) if quick else (1, 2, 3)
     steps = 100
     out = []
     rows = []
     for name in meshes:
         obj = quiet_load(name)
         for fingers in (1, 3):
-            s = _run(obj, "push", True, steps, fingers, 0)
-            b = _run(obj, "push", False, steps, fingers, 0)
-            rows.append([name, fingers, f"{s['f']:.3f}", f"{s['chamfer'] * 1e3:.2f}", f"{np.median(s['drift']) * 1e3:.1f}",
-                         f"{s['drift'][-1] * 1e3:.1f}", f"{b['f']:.3f}", f"{b['chamfer'] * 1e3:.2f}",
-                         f"{np.median(b['drift']) * 1e3:.1f}", f"{np.median(s['update']) * 1e3:.0f}"])
+            S = [_run(obj, "push", True, steps, fingers, s, reference=True) for s in push_seeds]
+            B = [_run(obj, "push", False, steps, fingers, s) for s in push_seeds]
+            upd = np.concatenate([s["update"] for s in S])
+            rows.append([name, fingers, _spread([s["f"] for s in S]), _spread([s["f_true"] for s in S]),
+                         _spread([np.median(s["drift"]) for s in S], "{:.1f}", 1e3),
+                         _spread([s["drift"][-1] for s in S], "{:.1f}", 1e3),
+                         _spread([b["f"] for b in B]), _spread([np.median(b["drift"]) for b in B], "{:.1f}", 1e3),
+                         f"{np.median(upd) * 1e3:.0f} / {np.percentile(upd, 95) * 1e3:.0f}"])
     out.append(f"### Pushed: 2 mm / 2 deg (standard deviation, planar) per action, no odometry, {steps} actions\n")
-    out.append("Drift is the ADD-S between the estimated and the true pose (symmetry-aware), per step. The static "
-               "baseline maps the same touches assuming the object never moved (its pose estimate is the start).\n")
-    out.append(table(["mesh", "fingers per action", "SLAM F@5mm", "SLAM Chamfer (mm)", "SLAM drift median (mm)",
-                      "SLAM drift last (mm)", "static F@5mm", "static Chamfer (mm)", "static drift median (mm)",
-                      "SLAM update median (ms)"], rows))
+    out.append(f"Seeds {', '.join(map(str, push_seeds))}; cells read median (min-max) over seeds. Drift is the "
+               "ADD-S between the estimated and the true pose (symmetry-aware), per step; its median over the run "
+               "is taken per seed. The static baseline maps the same kind of run assuming the object never moved "
+               "(its pose estimate is the start). \"Map at true poses\" maps the SLAM run's own touches at the "
+               "true poses: the F-score any pose estimator could reach with those touches. Update times are wall "
+               "clock on a shared machine.\n")
+    out.append(table(["mesh", "fingers per action", "SLAM F@5mm", "map at true poses F@5mm", "SLAM drift median (mm)",
+                      "SLAM drift last (mm)", "static F@5mm", "static drift median (mm)",
+                      "SLAM update median / p95 (ms)"], rows))
     rows = []
     for name in meshes:
         obj = quiet_load(name)
-        s = _run(obj, "inhand", True, 96, 3, 1)
-        turns = [s["ang"][i * 24:(i + 1) * 24] for i in range(4)]
-        rows.append([name, " / ".join(f"{np.median(t):.1f}" for t in turns), f"{np.max(s['ang']):.1f}",
-                     f"{0.05 * 15 * 96:.0f}", f"{s['f']:.3f}", f"{s['chamfer'] * 1e3:.2f}",
-                     f"{np.median(s['update']) * 1e3:.0f}"])
+        for scale in (False, True):
+            S = [_run(obj, "inhand", True, 96, 3, s, reference=True, scale=scale) for s in hand_seeds]
+            per_turn = np.array([[np.median(s["ang"][i * 24:(i + 1) * 24]) for i in range(4)] for s in S])
+            upd = np.concatenate([s["update"] for s in S])
+            rows.append([name, "learned" if scale else "off (as before)",
+                         " / ".join(f"{v:.1f}" for v in np.median(per_turn, axis=0)),
+                         " / ".join(f"{v:+.1f}" for v in per_turn[:, 3] - per_turn[:, 0]),
+                         " / ".join(f"{s['ang'][-1]:.1f}" for s in S), f"{0.05 * 15 * 96:.0f}",
+                         _spread([s["f"] for s in S]), _spread([s["f_true"] for s in S]),
+                         " / ".join(f"{s['scale']:.3f}" for s in S) if scale else "1 (fixed)",
+                         f"{np.median(upd) * 1e3:.0f} / {np.percentile(upd, 95) * 1e3:.0f}"])
     out.append("\n### In-hand rotation: 15 deg per action about z, odometry 5 % too large, 4 turns, 3 fingers\n")
-    out.append(table(["mesh", "orientation error per turn, median (deg)", "max (deg)",
-                      "odometry alone after 4 turns (deg)", "F@5mm", "Chamfer (mm)", "update median (ms)"], rows))
+    out.append(f"Seeds {', '.join(map(str, hand_seeds))}, each run with the odometry's turn scale fixed at 1 and "
+               "learned online (`TactileSLAM(..., odometry_scale=True)`; the right value is 1 / 1.05 = 0.952). "
+               "The orientation error (not symmetry-aware) is the median within each turn of 24 actions, then the "
+               "median over seeds; \"growth\" is turn 4 minus turn 1 per seed; \"last\" lists each seed's error "
+               "after the 96th action. \"Map at true poses\" is the static case of the goal: the same touches on "
+               "an object whose pose is known.\n")
+    out.append(table(["mesh", "odometry scale", "orientation error per turn, median (deg)",
+                      "growth turn 1 -> 4, per seed (deg)", "last, per seed (deg)",
+                      "odometry alone after 4 turns (deg)", "F@5mm", "map at true poses F@5mm",
+                      "learned scale, per seed", "update median / p95 (ms)"], rows))
     return "\n".join(out)
