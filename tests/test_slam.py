@@ -72,9 +72,11 @@ def test_odometry_scale_learned_from_the_map_and_left_alone_without_bias():
         explore(world, _box(bread, 0.06), 72, slam=slam, fingers=3, rng=1)
         assert len(slam.info["odometry_scale"]) > 10   # the guard let it learn
         learned[bias] = slam.odometry_scale
-    # the odometry reports 1.05 x the turn: the right scale is 1 / 1.05 = 0.952
-    assert abs(learned[0.05] - 1 / 1.05) < 0.025
-    assert abs(learned[0.0] - 1.0) < 0.025
+    # the odometry reports 1.05 x the turn: the right scale is 1 / 1.05 = 0.952; the estimate
+    # wanders by about 2 % about it (0.93-0.97 over the meshes and seeds of the benchmark)
+    assert abs(learned[0.05] - 1 / 1.05) < 0.03
+    assert abs(learned[0.0] - 1.0) < 0.03
+    assert learned[0.05] < learned[0.0] - 0.02
     fixed = TactileSLAM(_box(bread, 0.03))
     assert fixed.odometry_scale == 1.0 and not fixed.estimate_scale
 

@@ -95,7 +95,7 @@ class TactileSLAM:
         Learn, online, a scale on the odometry's turn angle (a hand that reports its
         turns a few per cent too large or too small): each step where the map corrects the
         predicted turn moves the scale by a small fraction of that correction. The
-        current value is ``.odometry_scale`` (1 until there is a map of 60 contacts).
+        current value is ``.odometry_scale`` (1 until there is a map of 30 contacts).
         Off by default: with an unbiased odometry it only adds noise of about a per cent.
     initial_pose : (4, 4) float, optional
     rng : None, int or Generator
@@ -199,7 +199,7 @@ class TactileSLAM:
     # tuning of the odometry-scale estimate (see _learn_scale)
     _SCALE_GAIN = 0.05
     _SCALE_RANGE = (0.8, 1.25)
-    _SCALE_MIN_CONTACTS = 60
+    _SCALE_MIN_CONTACTS = 30
 
     def _learn_scale(self, D, T, results):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
