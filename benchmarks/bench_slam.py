@@ -31,7 +31,8 @@ def _true_pose_map(results, poses, fingers, bounds):
     m = ShapeMap(bounds, sigma_pos=0.001, sigma_nor=0.087)
     for i, T in enumerate(poses):
         local = transform_results(results[i * fingers:(i + 1) * fingers], np.linalg.inv(T))
-        local = [r for r in local if r.contact is None or not np.any((r.contact.points < m.lo) | (r.contact.points > m.hi))]
+        local = [r for r in local
+                 if r.contact is None or not np.any((r.contact.points < m.lo) | (r.contact.points > m.hi))]
         if local:
             m.update(local)
     return m
@@ -47,7 +48,8 @@ def _run(obj, mode, use_slam, steps, fingers, seed, *, reference=False, scale=Tr
         skw = dict(planar=True)
     else:
         wkw = dict(push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05)
-        skw = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)), odometry_scale=scale)
+        skw = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
+                   learn_odometry_scale=scale)
     world = MovingWorld(obj, rng=seed, **wkw)
     t0 = time.perf_counter()
     if use_slam:
@@ -142,7 +144,7 @@ def run(quick: bool = False) -> str:
                          f"{np.median(upd) * 1e3:.0f} / {np.percentile(upd, 95) * 1e3:.0f}"])
     out.append("\n### In-hand rotation: 15 deg per action about z, odometry 5 % too large, 4 turns, 3 fingers\n")
     out.append(f"Seeds {', '.join(map(str, hand_seeds))}, each run with the odometry's turn scale fixed at 1 and "
-               "learned online (`TactileSLAM(..., odometry_scale=True)`; the right value is 1 / 1.05 = 0.952). "
+               "learned online (`TactileSLAM(..., learn_odometry_scale=True)`; the right value is 1 / 1.05 = 0.952). "
                "The orientation error (not symmetry-aware) is the median within each turn of 24 actions, then the "
                "median over seeds; \"growth\" is turn 4 minus turn 1 per seed; \"last\" lists each seed's error "
                "after the 96th action. \"Map at true poses\" is the static case of the goal: the same touches on "

@@ -67,8 +67,9 @@ def test_odometry_scale_learned_from_the_map_and_left_alone_without_bias():
     learned = {}
     for bias in (0.05, 0.0):
         world = MovingWorld(bread, rng=1, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=bias)
-        slam = TactileSLAM(_box(bread, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
-                           odometry_scale=True, sigma_pos=0.001, sigma_nor=0.087, rng=1)
+        slam = TactileSLAM(_box(bread, 0.03), motion=(0.0005, np.deg2rad(0.5)),
+                           odometry_noise=(0.0005, np.deg2rad(1.5)), learn_odometry_scale=True,
+                           sigma_pos=0.001, sigma_nor=0.087, rng=1)
         explore(world, _box(bread, 0.06), 72, slam=slam, fingers=3, rng=1)
         assert len(slam.info["odometry_scale"]) > 10   # the guard let it learn
         learned[bias] = slam.odometry_scale
@@ -78,7 +79,7 @@ def test_odometry_scale_learned_from_the_map_and_left_alone_without_bias():
     assert abs(learned[0.0] - 1.0) < 0.03
     assert learned[0.05] < learned[0.0] - 0.02
     fixed = TactileSLAM(_box(bread, 0.03))
-    assert fixed.odometry_scale == 1.0 and not fixed.estimate_scale
+    assert fixed.odometry_scale == 1.0 and not fixed.learn_odometry_scale
 
 
 def test_slam_bad_input(milk):
@@ -89,7 +90,7 @@ def test_slam_bad_input(milk):
     with pytest.raises(ValidationError):
         TactileSLAM(_box(milk, 0.02), motion=(-1.0, 0.0))
     with pytest.raises(ValidationError):
-        TactileSLAM(_box(milk, 0.02), odometry_scale="yes")
+        TactileSLAM(_box(milk, 0.02), learn_odometry_scale="yes")
     slam = TactileSLAM(_box(milk, 0.02))
     reflect = np.diag([1.0, 1.0, -1.0, 1.0])
     with pytest.raises(ValidationError):

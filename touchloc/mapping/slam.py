@@ -91,7 +91,7 @@ class TactileSLAM:
     planar : bool
         The object moves on a table: x, y and yaw only.
     n_particles : int
-    odometry_scale : bool
+    learn_odometry_scale : bool
         Learn, online, a scale on the odometry's turn angle (a hand that reports its
         turns a few per cent too large or too small): each step where the map corrects the
         predicted turn moves the scale by a small fraction of that correction. The
@@ -104,7 +104,7 @@ class TactileSLAM:
     """
 
     def __init__(self, bounds, *, motion=(0.002, np.deg2rad(2.0)), odometry_noise=(0.001, np.deg2rad(1.0)),
-                 planar: bool = False, n_particles: int = 300, odometry_scale: bool = False, initial_pose=None,
+                 planar: bool = False, n_particles: int = 300, learn_odometry_scale: bool = False, initial_pose=None,
                  rng=None, **map_kwargs):
         self.bounds = as_bounds(bounds)
         self.motion = _pair(motion, "motion")
@@ -112,7 +112,7 @@ class TactileSLAM:
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or not 10 <= n_particles <= 100_000:
             raise ValidationError(f"n_particles must be an integer in [10, 100000], got {n_particles!r}")
         self.planar = as_bool(planar, "planar")
-        self.estimate_scale = as_bool(odometry_scale, "odometry_scale")
+        self.learn_odometry_scale = as_bool(learn_odometry_scale, "learn_odometry_scale")
         self.odometry_scale = 1.0
         self.rng = as_rng(rng)
         T0 = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose")
@@ -156,7 +156,7 @@ class TactileSLAM:
         D = None
         if odometry is not None:
             D = _as_pose(odometry, "odometry")
-            if self.estimate_scale:
+            if self.learn_odometry_scale:
                 D = _scaled_turn(D, self.odometry_scale)
             P = self.particles.copy()
             P[:, :3, :3] = D[:3, :3] @ P[:, :3, :3]
@@ -181,7 +181,7 @@ class TactileSLAM:
             lw = np.full(len(P), -np.log(len(P)))
         self.particles, self.log_w = P, lw
         T = self._mean_pose()
-        if D is not None and self.estimate_scale:
+        if D is not None and self.learn_odometry_scale:
             self._learn_scale(D, T, results)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
