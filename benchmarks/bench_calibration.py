@@ -58,36 +58,59 @@ def estimators():
 
     def mcmc(m, c, r, s):
         start = ScalingSeries(m, rng=s).localize(c, r)
-        return MCMC(m, n_walkers=16, n_steps=200, burn=100, thin=5, rng=s).refine(c, start, r)
+        return MCMC(m, n_walkers=16, n_steps=150, burn=100, thin=5, rng=s).refine(c, start, r)
 
     return {"Scaling Series": ss, "Scaling Series, m_per_delta=12": ss12,
             "Scaling Series, final cover only (Alg. 1 as written)": ss_cover,
             "SMCFilter (2000)": smc, "ParticleFilter (IS, 20k)": pf,
-            "MCMC (emcee, 16 walkers x 300 steps, thin 5, from SS)": mcmc}
+            "MCMC (emcee, 16 walkers x 250 steps, thin 5, from SS)": mcmc}
+
+
+WORKERS = 2   # trials are independent and seeded: spread over processes, same results as one
+_OBJ = {}
+
+
+def _cell(args):
+    """Every estimator on one trial (in a worker process): [(name, mesh, k, q, seconds)]."""
+    mesh, k, t, names, offset = args
+    warnings.simplefilter("ignore")
+    if mesh not in _OBJ:
+        obj = quiet_load(mesh)
+        obj.symmetries()
+        _OBJ[mesh] = obj
+    obj = _OBJ[mesh]
+    region = planar_region(obj)
+    model = ProximityModel(obj, SIGMA_POS, SIGMA_NOR)
+    ests = estimators()
+    seed = 10_000 * k + 100 * (MESHES + HELD_OUT_MESHES).index(mesh) + offset + t
+    true, c = trial(obj, region, k, seed)
+    out = []
+    for name in names:
+        t0 = time.process_time()
+        b = ests[name](model, c, region, seed)
+        dt = time.process_time() - t0
+        out.append((name, mesh, k, hpd_level(b, true, obj, rng=seed), dt))
+    return out
 
 
 def run_cells(n_trials, meshes=MESHES + HELD_OUT_MESHES, contacts=CONTACTS, names=None, offset=SEED_OFFSET):
-    """{(estimator, mesh, k): list of (level q, seconds)}."""
-    ests = estimators()
-    names = list(ests) if names is None else names
+    """{(estimator, mesh, k): list of (level q, CPU seconds)}."""
+    import multiprocessing
+    import sys
+    import types
+    from concurrent.futures import ProcessPoolExecutor
+
+    names = list(estimators()) if names is None else names
+    tasks = [(m, k, t, names, offset) for m in meshes for k in contacts for t in range(n_trials)]
+    if sys.modules.get(__name__) is None:  # loaded from a file by run.py: let workers find _cell by name
+        mod = types.ModuleType(__name__)
+        mod.__dict__.update(globals())
+        sys.modules[__name__] = mod
     out = {}
-    for mesh in meshes:
-        obj = quiet_load(mesh)
-        obj.symmetries()
-        region = planar_region(obj)
-        model = ProximityModel(obj, SIGMA_POS, SIGMA_NOR)
-        for k in contacts:
-            for t in range(n_trials):
-                seed = 10_000 * k + 100 * (MESHES + HELD_OUT_MESHES).index(mesh) + offset + t
-                true, c = trial(obj, region, k, seed)
-                for name in names:
-                    t0 = time.perf_counter()
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore")
-                        b = ests[name](model, c, region, seed)
-                    dt = time.perf_counter() - t0
-                    q = hpd_level(b, true, obj, rng=seed)
-                    out.setdefault((name, mesh, k), []).append((q, dt))
+    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("fork")) as ex:
+        for rows in ex.map(_cell, tasks):
+            for name, mesh, k, q, dt in rows:
+                out.setdefault((name, mesh, k), []).append((q, dt))
     return out
 
 
@@ -98,7 +121,7 @@ def _cov(qs, a):
 
 def run(quick: bool = False) -> str:
     warnings.simplefilter("ignore")
-    n_trials = 1 if quick else 4
+    n_trials = 1 if quick else 3
     meshes = MESHES + HELD_OUT_MESHES
     res = run_cells(n_trials)
     names = list(estimators())
@@ -137,7 +160,7 @@ def run(quick: bool = False) -> str:
         f"{se[0.5]:.0f} / {se[0.9]:.0f} / {se[0.95]:.0f} points at 50 / 90 / 95 % "
         f"({se_all[0.5]:.0f} / {se_all[0.9]:.0f} / {se_all[0.95]:.0f} for 'all').",
         table(["estimator", "contacts", "trials", "truth in 50 % region", "in 90 %", "in 95 %",
-               "median s"], rows),
+               "median CPU s"], rows),
         f"Per mesh, truth in the 90 % region over all contact counts ({len(CONTACTS) * n_trials} trials per cell):",
         table(["estimator"] + meshes, per_mesh),
     ]
