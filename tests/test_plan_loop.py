@@ -150,6 +150,8 @@ def test_active_loop_localises_and_records(box, model):
     # the default stopping rule: the belief claims P(ADD-S < 5 mm) >= 0.95 at the stop, not before
     assert res.steps[-1].p_within >= 0.95
     assert all(s.p_within < 0.95 for s in res.steps[1:-1])
+    # the stop was checked by a second, independent run before it was taken
+    assert res.steps[-1].verified and "second_opinion" in res.belief.info
     assert all(s.plan is not None and s.plan.scores.shape == (50,) for s in res.steps[1:])
     assert "touch" in res.table() and len(res.table().splitlines()) == res.touches + 3
 
@@ -191,7 +193,7 @@ def test_legacy_confidence_rule_and_stop_validation(box, model):
                               max_touches=12, confidence=0.003, rng=0)
     assert res.confident and res.steps[-1].expected_error < 0.003
     assert np.isnan(res.steps[-1].p_within)
-    for bad in ({"stop_probability": 1.5}, {"stop_error": -1.0}, {"confidence": 0.0}):
+    for bad in ({"stop_probability": 1.5}, {"stop_error": -1.0}, {"confidence": 0.0}, {"verify_stop": "yes"}):
         with pytest.raises(ValidationError):
             active_localization(world, model, reg, OneStepPlanner(model), gen, max_touches=1, **bad)
 

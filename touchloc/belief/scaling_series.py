@@ -75,9 +75,10 @@ class ScalingSeries:
         even-density sample of the region the series kept) and tempers the likelihood
         in from power 0 to 1 by resample-move SMC (:func:`touchloc.belief.smc.temper`:
         steps that keep half the effective sample size, at most ``final_stages`` of
-        them, each followed by ``final_moves`` Metropolis moves whose stationary
-        distribution is the tempered posterior). The result is an equally weighted
-        posterior sample;
+        them, each followed by at least ``final_moves`` Metropolis moves whose
+        stationary distribution is the tempered posterior, with a walk size that adapts
+        to the acceptance, and more moves until each particle has moved about twice).
+        The result is an equally weighted posterior sample;
         ``info["cover"]`` keeps the weighted cover at delta* (and ``info`` its
         evidence terms), ``info["map_pose"]`` the sample's pose of highest posterior.
     n_posterior : int
@@ -96,7 +97,7 @@ class ScalingSeries:
     def __init__(self, model, *, delta_final: float | None = None, m_per_delta: int = 6,
                  n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
                  prune_ratio: float = 1e-3, anneal: str | float = "alg1", final_moves: int = 3,
-                 n_posterior: int = 500, final_stages: int = 20, dynamics=None,
+                 n_posterior: int = 500, final_stages: int = 60, dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
         delta_final = None if delta_final is None else as_positive_float(delta_final, "delta_final (m)")
@@ -279,7 +280,7 @@ class ScalingSeries:
         out = ParticleBelief(P, None, region=region, resolution=cover.resolution, info=dict(cover.info),
                              degenerate=cover.degenerate)
         out.info.update(cover=cover, map_pose=P[int(np.argmax(l_old + l_new))].copy(), final_stages=stages,
-                        final_acceptance=float(np.mean(acc)) if acc else float("nan"))
+                        final_acceptance=float(np.mean(acc)) if acc else float("nan"), final_move_count=len(acc))
         return out
 
     # -- static ------------------------------------------------------------------------

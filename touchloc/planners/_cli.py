@@ -26,6 +26,8 @@ def add_arguments(p, *, mesh="cereal", max_touches=20, particles=2000, confidenc
                    help="... with at least this probability (default 0.95)")
     p.add_argument("--stop-metric", default="add_s", choices=["add_s", "pose"],
                    help="error of that claim: ADD-S, or the pose metric modulo symmetry (sees a mug's handle)")
+    p.add_argument("--no-verify-stop", dest="verify_stop", action="store_false",
+                   help="stop on the claim without first checking it against a second, independent run")
     p.add_argument("--confidence", type=float, default=confidence,
                    help="the older rule instead: stop when the belief's expected ADD-S is below this (mm)"
                         + (f"; default {confidence}" if confidence is not None else ""))
@@ -94,7 +96,7 @@ def run(args) -> int:
     res = active_localization(world, sc.model, sc.region, planner, sc.candidates, n_particles=args.particles,
                               max_touches=args.max_touches, stop_error=args.stop_error * 1e-3,
                               stop_probability=args.stop_probability, stop_metric=args.stop_metric,
-                              confidence=None if args.confidence is None else args.confidence * 1e-3, rng=args.seed,
+                              verify_stop=args.verify_stop, confidence=None if args.confidence is None else args.confidence * 1e-3, rng=args.seed,
                               callback=show)
     dt = time.perf_counter() - t0 - setup.collect()
     print(f"\n{'confident' if res.confident else 'not confident'} after {res.touches} touches "

@@ -63,6 +63,7 @@ class Step:
     map_pose: np.ndarray
     plan: object = None
     p_within: float = float("nan")
+    verified: bool = False
 
     @property
     def hits(self) -> int:
@@ -116,8 +117,8 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
                         max_touches: int = 20, stop_error: float | None = None, stop_probability: float = 0.95,
                         stop_metric: str = "add_s",
                         confidence: float | None = None, min_touches: int = 1,
-                        updater=None, rng=None, progress_bar=None, keep_plans: bool = False,
-                        callback=None) -> ActiveResult:
+                        updater=None, verify_stop: bool = True, rng=None, progress_bar=None,
+                        keep_plans: bool = False, callback=None) -> ActiveResult:
     """Localise an object by touching it where the planner says, until the belief is confident.
 
     Parameters
@@ -156,6 +157,14 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
         :class:`~touchloc.belief.SMCFilter` (the default), ``ScalingSeries``,
         ``ParticleFilter`` or ``HistogramFilter``. If it has ``initialize`` and no belief
         yet, the loop initialises it over ``region``.
+    verify_stop : bool
+        Before stopping on the claim, ask an updater that can check itself
+        (``updater.second_opinion()``, e.g. :class:`~touchloc.belief.SMCFilter`: an
+        independent run from the prior on every touch so far, pooled with the current
+        belief by evidence) and stop only if the claim still holds on the pooled belief.
+        A filter that has lost the true mode is confident and wrong; the check costs one
+        more localisation at the confident step and no touch. Default on; ignored with
+        ``confidence`` and for updaters without ``second_opinion``.
     rng : None, int or Generator
     keep_plans : bool
         Keep every Plan (with its candidates' scores) in the steps.
@@ -183,6 +192,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     if progress_bar is not None:
         progress_bar = as_bool(progress_bar, "progress_bar")
     keep_plans = as_bool(keep_plans, "keep_plans")
+    verify_stop = as_bool(verify_stop, "verify_stop")
     callback = as_callable(callback, "callback", allow_none=True)
     if confidence is None:
         stop_error = 0.005 if stop_error is None else as_positive_float(stop_error, "stop_error")
@@ -243,10 +253,17 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
         updater.update(results)
         t3 = time.perf_counter()
         step = record(i, plan.action, results, t1 - t0, t3 - t2, plan)
+        done = step.expected_error < confidence if confidence is not None else step.p_within >= stop_probability
+        if done and confidence is None and verify_stop and i >= min_touches \
+                and callable(getattr(updater, "second_opinion", None)):
+            t4 = time.perf_counter()
+            updater.second_opinion()
+            step = record(i, plan.action, results, t1 - t0, t3 - t2 + time.perf_counter() - t4, plan)
+            step.verified = True
+            done = step.p_within >= stop_probability
         steps.append(step)
         if callback is not None:
             callback(step)
-        done = step.expected_error < confidence if confidence is not None else step.p_within >= stop_probability
         if i >= min_touches and done:
             confident = True
             break

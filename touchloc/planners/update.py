@@ -43,7 +43,7 @@ class TouchFilter:
     with the old keyword ``sigma_free`` mapped to the free-space model's ``sigma``."""
 
     def __new__(cls, model, region, n_particles: int = 2000, *, moves: int = 3, ess_fraction: float = 0.5,
-                max_stages: int = 8, rng=None, sigma_free=None, **free_kwargs):
+                max_stages: int = 60, rng=None, sigma_free=None, **free_kwargs):
         from ..belief import SMCFilter
 
         _warn("TouchFilter", "touchloc.belief.SMCFilter")
