@@ -7,10 +7,15 @@ helpers every command shares (warnings, mesh arguments, interruption, diagnosis)
 
 from __future__ import annotations
 
+import _thread
 import argparse
+import atexit
 import importlib
+import os
 import signal
 import sys
+import threading
+import time
 import warnings
 from pathlib import Path
 
@@ -74,17 +79,50 @@ def _show_warning(verbose: int):
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.version:
-        from . import __version__
+    """Run one ``touchloc`` command (``argv`` as on the command line); its exit status.
 
-        print(__version__)
-        return 0
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    Ctrl-C is handled as in :func:`run` while the command works (one line, status 130);
+    the previous SIGINT handler is put back afterwards.
+    """
+    intr = _Interrupts()
+    if not intr.install():
+        return _main(argv, intr)
     try:
+        return _main(argv, intr)
+    finally:
+        intr.uninstall()
+
+
+def run() -> None:
+    """Entry point of the ``touchloc`` program and of ``python -m touchloc``: exits the process.
+
+    The Ctrl-C handler goes in before anything heavy is imported, and stays until the
+    process is gone (see :class:`_Interrupts`).
+    """
+    intr = _Interrupts()
+    intr.install()
+    atexit.register(_ignore_interrupts)  # registered first, so it runs after every other atexit callback
+    status = _main(None, intr)
+    intr.finished = status
+    sys.exit(status)
+
+
+def _main(argv, intr) -> int:
+    args = None
+    label = "touchloc"
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command:
+            label = intr.label = f"touchloc {args.command}"
+        if args.version:
+            from . import __version__
+
+            print(__version__)
+            return 0
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
         with warnings.catch_warnings():
             if args.quiet:
                 warnings.simplefilter("ignore")
@@ -104,18 +142,18 @@ def main(argv=None) -> int:
                       file=sys.stderr, flush=True)
             return status
     except TouchlocError as exc:
-        if args.verbose > 1:
+        if args is not None and args.verbose > 1:
             raise
-        print(f"touchloc {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{label}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"touchloc {args.command}: interrupted", file=sys.stderr, flush=True)
+        print(f"{label}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
     except SystemError as exc:
-        # Ctrl-C inside C code (numba loading its cache) arrives wrapped in a SystemError
+        # Ctrl-C inside C code that calls back into Python arrives wrapped in a SystemError
         if not _caused_by_interrupt(exc):
             raise
-        print(f"touchloc {args.command}: interrupted", file=sys.stderr, flush=True)
+        print(f"{label}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
 
 
@@ -127,6 +165,126 @@ def _caused_by_interrupt(exc) -> bool:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+# -- Ctrl-C --------------------------------------------------------------------------------
+#
+# Python turns SIGINT into a KeyboardInterrupt at whatever bytecode the main thread runs
+# next. In a few places of the libraries touchloc uses that is not safe, and the handler
+# below holds the interruption until the main thread has left them:
+#  * numba and llvmlite (loading kernels from numba's cache, compiling, importing them):
+#    an exception there can leave LLVM objects half made, which crashes the process when
+#    it exits (SIGSEGV), or it is raised inside a ctypes callback, which swallows it (the
+#    command goes on and exits 0);
+#  * a thread being joined (scipy's cKDTree queries with workers=-1 run in threads): the
+#    interrupted join leaves them running on memory that the exiting interpreter frees.
+# And once the command's work is over, a Ctrl-C must not kill the process by the signal:
+# Python puts the default action back while it finalises, so a Ctrl-C then ends the
+# process with no message and status -2. The program ignores SIGINT from its last
+# atexit callback on.
+
+_HOLD_PACKAGES = frozenset({"numba", "llvmlite"})
+_HOLD_CALLS = frozenset({("threading", "join"), ("threading", "_wait_for_tstate_lock")})
+#: seconds an interruption may wait before the command says why it has not stopped yet
+_HOLD_NOTE_AFTER = 3.0
+
+
+def _in_unsafe_code(frame) -> bool:
+    """Whether a KeyboardInterrupt raised in ``frame`` (the main thread's) would be unsafe."""
+    depth = 0
+    while frame is not None:
+        mod = frame.f_globals.get("__name__") or ""
+        if mod.partition(".")[0] in _HOLD_PACKAGES:
+            return True
+        if depth < 2 and (mod, frame.f_code.co_name) in _HOLD_CALLS:
+            return True
+        frame = frame.f_back
+        depth += 1
+    return False
+
+
+def _flush_std():
+    for f in (sys.stdout, sys.stderr):
+        try:
+            f.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+
+
+class _Interrupts:
+    """The SIGINT handler of a command.
+
+    Raises KeyboardInterrupt in the main thread, unless that thread is in code where the
+    exception is unsafe (:func:`_in_unsafe_code`): then the interruption is held, and a
+    watcher thread delivers it again (``_thread.interrupt_main``) as soon as the main
+    thread has left that code. A second Ctrl-C while one is held ends the process at once
+    (status 130). After the work (``finished`` set), Ctrl-C ends the process at once with
+    the command's own status.
+    """
+
+    def __init__(self):
+        self.label = "touchloc"
+        self.finished = None
+        self.held = False
+        self.redelivering = False
+        self._previous = None
+        self._main = threading.main_thread().ident
+
+    def install(self) -> bool:
+        if threading.current_thread() is not threading.main_thread():
+            return False  # signal handlers can only be set from the main thread
+        self._previous = signal.signal(signal.SIGINT, self)
+        return True
+
+    def uninstall(self):
+        self.held = False
+        if signal.getsignal(signal.SIGINT) is self:
+            signal.signal(signal.SIGINT, self._previous if self._previous is not None else signal.default_int_handler)
+
+    def __call__(self, signum, frame):
+        if self.finished is not None:
+            _flush_std()
+            os._exit(self.finished)
+        if self.held and not self.redelivering:  # a second Ctrl-C while the first waits: stop now
+            print(f"{self.label}: interrupted", file=sys.stderr)
+            _flush_std()
+            os._exit(EXIT_INTERRUPTED)
+        self.redelivering = False
+        if _in_unsafe_code(frame):
+            if not self.held:
+                self.held = True
+                threading.Thread(target=self._watch, name="touchloc-interrupt", daemon=True).start()
+            return
+        self.held = False
+        raise KeyboardInterrupt
+
+    def _watch(self):
+        t0 = time.monotonic()
+        noted = False
+        while self.held:
+            time.sleep(0.02)
+            if self.redelivering:
+                continue  # the main thread has not run the handler yet (busy in compiled code)
+            frame = sys._current_frames().get(self._main)
+            if frame is None:
+                return
+            if not _in_unsafe_code(frame):
+                self.redelivering = True
+                _thread.interrupt_main(signal.SIGINT)
+            elif not noted and time.monotonic() - t0 > _HOLD_NOTE_AFTER:
+                noted = True
+                print(f"{self.label}: stopping when the kernels are compiled or loaded; press Ctrl-C again "
+                      "to stop at once", file=sys.stderr, flush=True)
+            del frame
+
+
+def _ignore_interrupts():
+    # the program's last atexit callback: from here on Python finalises, with SIGINT's
+    # default action unless it is ignored
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except (ValueError, OSError):
+        pass
 
 
 # -- helpers shared by the subcommands -----------------------------------------------
@@ -228,10 +386,6 @@ def diagnose(obj, contacts, region, belief=None, *, sigma_pos: float | None = No
     return lines
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
-
-
 class heartbeat:
     """Context manager: print ``label: still working (N s)`` to stderr every ``interval`` s.
 
@@ -261,3 +415,7 @@ class heartbeat:
         self._stop.set()
         self._thread.join(timeout=1.0)
         return False
+
+
+if __name__ == "__main__":  # pragma: no cover
+    run()

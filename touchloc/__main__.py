@@ -1,0 +1,5 @@
+"""``python -m touchloc``: the ``touchloc`` command."""
+
+from .cli import run
+
+run()
