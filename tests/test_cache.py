@@ -263,10 +263,11 @@ def test_kernel_cache_falls_back_when_nothing_is_writable(tmp_path):
     assert json.loads(out.stdout)[0] is False
     # an explicit but unwritable NUMBA_CACHE_DIR: no disk cache, and the kernels still import
     env = dict(base, NUMBA_CACHE_DIR=str(blocker / "nb"))
-    code2 = "import touchloc.models._kernels as K; print(K._NB['cache'])"
+    code2 = ("import touchloc.models._kernels as K, touchloc.belief._cover as C; "
+             "print(K._NB['cache'], C._NB['cache'])")
     out = subprocess.run([sys.executable, "-c", code2], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip() == "False False"
 
 
 # -- the command line ---------------------------------------------------------------------
@@ -338,3 +339,33 @@ def test_compile_notice_is_printed_once_for_touchloc_kernels_only():
     with CompileNotice(file=buf2) as cn2:
         f(2)  # already compiled: no event
     assert buf2.getvalue() == "" and cn2.count == 0
+
+
+def test_warm_kernels_leaves_nothing_for_a_localisation_to_load_or_compile():
+    """After warm_kernels(), a Scaling Series localisation (large enough for the parallel
+    kernels and both cover counts) adds no signature to any kernel of the proximity
+    model or of the cover."""
+    import numba
+
+    from touchloc._warmup import warm_kernels
+    from touchloc.belief import PoseRegion, ScalingSeries
+    from touchloc.belief import _cover as C
+    from touchloc.models import Contacts
+
+    def signatures():
+        return {(m.__name__, n): set(d.signatures) for m in (K, C) for n, d in vars(m).items()
+                if isinstance(d, numba.core.registry.CPUDispatcher)}
+
+    warm_kernels()
+    before = signatures()
+    obj = _mug()
+    pts, nrm, _ = obj.sample_surface(10, rng=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ScalingSeries(ProximityModel(obj, 0.002, 0.1, grid_cell=CELL), rng=0).localize(
+            Contacts(pts, nrm), PoseRegion.box((0, 0, 0), 0.05, "full"))
+    after = signatures()
+    new = {k: after[k] - before[k] for k in after if after[k] - before[k]}
+    assert not new, new
+    used = {n for (m, n), s in after.items() if s}
+    assert {"_count_in_lists", "_count_in_lists_serial", "_csr", "_bvh_query", "_grid_query"} <= used

@@ -97,9 +97,10 @@ def _tetrahedron():
 def warm_kernels(*, full: bool = False) -> float:
     """Load (or compile, the first time) the numba kernels on a 4-face mesh; seconds taken.
 
-    ``full=False``: the kernels every localisation uses (exact and fast joint queries);
-    ``full=True``: every kernel, including position-only grids and the brute-force
-    reference.
+    ``full=False``: the kernels every localisation uses (exact and fast joint queries, in
+    their one-thread and parallel forms, and the ball counts of the Scaling Series
+    cover); ``full=True``: every kernel, including position-only grids and the
+    brute-force reference.
     """
     from . import _cache
 
@@ -110,22 +111,41 @@ def warm_kernels(*, full: bool = False) -> float:
         _warm(obj, full)
     finally:
         _cache.suspended -= 1
+    _warm_cover()
     return time.perf_counter() - t0
 
 
 def _warm(obj, full):
     from .models import ProximityModel
+    from .models._kernels import PARALLEL_MIN
 
     P = np.array([[0.01, 0.01, 0.01], [0.2, 0.0, 0.0]])
     N = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    # enough queries for the parallel kernels too (below PARALLEL_MIN the one-thread ones run)
+    PP, NN = np.resize(P, (PARALLEL_MIN, 3)), np.resize(N, (PARALLEL_MIN, 3))
     # a coarse grid: a tiny build, the same compiled code as any mesh's
     model = ProximityModel(obj, 0.002, 0.1, grid_cell=0.02, grid_margin=0.01)
-    model.query_costs(P, N, method="exact")
-    model.query_costs(P, N, method="fast")
+    for method in ("exact", "fast"):
+        model.query_costs(P, N, method=method)
+        model.query_costs(PP, NN, method=method)
     if full:
         model.query_costs(P, None, method="fast")  # position-only grid lists
         model.query_costs(P, N, method="bruteforce")
         obj.closest_points(P)
+
+
+def _warm_cover():
+    """The ball-count kernels of the Scaling Series cover, with the argument types it passes."""
+    from .belief import _cover as C
+
+    off, nbr = C._csr(np.array([[0, 1]], dtype=np.int64), 2)
+    A = np.zeros((2, 7))
+    X = np.zeros((3, 7))
+    anchor = np.zeros(3, dtype=np.int64)
+    for kernel in (C._count_in_lists, C._count_in_lists_serial):
+        kernel(A, off, nbr, X, anchor, 1.0)
+    for kernel in (C._count_capped, C._count_capped_serial):
+        kernel(A, X, 1.0, 16)
 
 
 class SetUp:

@@ -16,6 +16,8 @@ import numba as nb
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._cache import numba_cache_enabled
+
 __all__ = ["ball_counts", "accept_draws"]
 
 #: Above this many neighbour pairs (per candidate) the pair lists cost more (in time and
@@ -23,8 +25,11 @@ __all__ = ["ball_counts", "accept_draws"]
 #: KD-tree query per candidate.
 MAX_PAIRS_PER_CANDIDATE = 32
 
+# cache=: compiled code kept on disk when numba has a writable place for it (see touchloc._cache)
+_NB = dict(cache=numba_cache_enabled(__file__), nogil=True)
 
-@nb.njit(inline="always", cache=True, nogil=True)
+
+@nb.njit(inline="always", **_NB)
 def _in_list(A, off, nbr, X, q, a, r2):
     D = X.shape[1]
     c = 0
@@ -39,7 +44,7 @@ def _in_list(A, off, nbr, X, q, a, r2):
     return c
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
+@nb.njit(parallel=True, **_NB)
 def _count_in_lists(A, off, nbr, X, anchor, r2):
     out = np.zeros(X.shape[0], np.int64)
     for q in nb.prange(X.shape[0]):
@@ -47,7 +52,7 @@ def _count_in_lists(A, off, nbr, X, anchor, r2):
     return out
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(**_NB)
 def _count_in_lists_serial(A, off, nbr, X, anchor, r2):
     out = np.zeros(X.shape[0], np.int64)
     for q in range(X.shape[0]):
@@ -55,7 +60,7 @@ def _count_in_lists_serial(A, off, nbr, X, anchor, r2):
     return out
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(**_NB)
 def _csr(pairs, n):
     """Symmetric neighbour lists (self included) from (P, 2) index pairs i < j."""
     deg = np.ones(n, np.int64)
@@ -79,7 +84,7 @@ def _csr(pairs, n):
     return off, nbr
 
 
-@nb.njit(inline="always", cache=True, nogil=True)
+@nb.njit(inline="always", **_NB)
 def _capped_one(A, X, q, r2, cap):
     D = X.shape[1]
     c = 0
@@ -95,7 +100,7 @@ def _capped_one(A, X, q, r2, cap):
     return c
 
 
-@nb.njit(parallel=True, cache=True, nogil=True)
+@nb.njit(parallel=True, **_NB)
 def _count_capped(A, X, r2, cap):
     """min(cap, number of rows of A within sqrt(r2) of each row of X), scanning A in order."""
     out = np.zeros(X.shape[0], np.int64)
@@ -104,7 +109,7 @@ def _count_capped(A, X, r2, cap):
     return out
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(**_NB)
 def _count_capped_serial(A, X, r2, cap):
     out = np.zeros(X.shape[0], np.int64)
     for q in range(X.shape[0]):
