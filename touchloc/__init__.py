@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 
-from . import errors, geometry, models
+from . import errors
 from .errors import (
     BeliefDegenerateError,
     HardwareError,
@@ -24,13 +24,20 @@ from .errors import (
 
 __version__ = "0.1.0"
 
-_LAZY = {"belief", "planners", "dnf", "hardware", "recognition", "data", "cli"}
+#: subpackages imported on first use (``tl.models``, ``tl.belief``, ...): ``import touchloc``
+#: stays cheap, and the ``touchloc`` command imports only what its subcommand needs
+_LAZY = {"geometry", "models", "belief", "planners", "dnf", "hardware", "recognition", "mapping", "experiments",
+         "data", "cli"}
 
 
 def __getattr__(name):
     if name in _LAZY:
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'touchloc' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | _LAZY)
 
 
 __all__ = [

@@ -7,19 +7,24 @@ Static estimators have ``localize(contacts, region) -> ParticleBelief``; filters
 can drive ``planners.active_localization``.
 """
 
-from ._common import DegenerateBeliefWarning
-from .annealed import AnnealedParticleFilter, ManifoldParticleFilter
-from .histogram import HistogramFilter
-from .identify import identify, log_evidence
-from .io import load_belief, pose_to_dict, save_belief
-from .mcmc import MCMC
-from .metrics import (add, add_s, belief_coverage, credible_level, hpd_level, pairwise_symmetric_distance, pose_errors,
-                      symmetric_pose_error)
-from .particle_filter import ParticleFilter
-from .particles import RESAMPLERS, ParticleBelief, register_resampler, systematic_resample
-from .region import PoseRegion
-from .scaling_series import ScaleStep, ScalingSeries
-from .smc import SMCFilter
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "_common": ("DegenerateBeliefWarning",),
+    "annealed": ("AnnealedParticleFilter", "ManifoldParticleFilter"),
+    "histogram": ("HistogramFilter",),
+    "identify": ("identify", "log_evidence"),
+    "io": ("load_belief", "pose_to_dict", "save_belief"),
+    "mcmc": ("MCMC",),
+    "metrics": ("add", "add_s", "belief_coverage", "credible_level", "hpd_level", "pairwise_symmetric_distance",
+        "pose_errors", "symmetric_pose_error"),
+    "particle_filter": ("ParticleFilter",),
+    "particles": ("RESAMPLERS", "ParticleBelief", "register_resampler", "systematic_resample"),
+    "region": ("PoseRegion",),
+    "scaling_series": ("ScaleStep", "ScalingSeries"),
+    "smc": ("SMCFilter",),
+}
 
 __all__ = [
     "PoseRegion", "ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample",
@@ -29,3 +34,5 @@ __all__ = [
     "pairwise_symmetric_distance", "belief_coverage",
     "save_belief", "load_belief", "pose_to_dict",
 ]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -8,14 +8,20 @@ Rao-Blackwellised particle filter (:class:`ParticleOrientationEstimator`), a gen
 the seed's experiment and a loader for recorded data complete the comparison.
 """
 
-from .data import (OBJECTS, SEED_FAITHFUL, RotationDataset, generate_rotation_dataset, load_recording, save_recording,
-                   standard_datasets)
-from .estimators import HistogramEstimator, count_surfaces, normalize_max, surface_peaks
-from .fields import (Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, diagonal_sum, expand,
-                     lateral_kernel, sigmoid)
-from .tracker import OrientationTracker, TrackerParams, population_code
-from .particle import ParticleOrientationEstimator
-from .compare import EstimatorRun, compare, default_estimators, orientation_error, run_estimator, summary_table
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "data": ("OBJECTS", "SEED_FAITHFUL", "RotationDataset", "generate_rotation_dataset", "load_recording",
+        "save_recording", "standard_datasets"),
+    "estimators": ("HistogramEstimator", "count_surfaces", "normalize_max", "surface_peaks"),
+    "fields": ("Field1D", "Field2D", "FieldParams", "MemoryTrace", "circular_convolve", "diagonal_sum", "expand",
+        "lateral_kernel", "sigmoid"),
+    "tracker": ("OrientationTracker", "TrackerParams", "population_code"),
+    "particle": ("ParticleOrientationEstimator",),
+    "compare": ("EstimatorRun", "compare", "default_estimators", "orientation_error", "run_estimator",
+        "summary_table"),
+}
 
 __all__ = [
     "OrientationTracker", "TrackerParams", "count_surfaces", "surface_peaks", "HistogramEstimator",
@@ -26,3 +32,5 @@ __all__ = [
     "RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording", "save_recording",
     "OBJECTS", "SEED_FAITHFUL",
 ]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)

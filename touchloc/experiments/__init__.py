@@ -9,11 +9,19 @@ process pool, a Dask ``LocalCluster`` or an existing Dask scheduler) and streams
 per trial to a CSV file, so an interrupted sweep resumes where it stopped.
 """
 
-from .runner import COLUMNS, SerialExecutor, executor, read_results, run_sweep, summarize, write_parquet
-from .sweep import DNF_ESTIMATORS, ESTIMATORS, LOOP_OPTIONS, MODES, PLANNERS, DNFSweep, Sweep, bundled_sweeps, trial_id
-from .trial import DNF_COLUMNS, RESULT_COLUMNS, TIME_COLUMNS, cache_info, clear_cache, run_trial
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "runner": ("COLUMNS", "SerialExecutor", "executor", "read_results", "run_sweep", "summarize", "write_parquet"),
+    "sweep": ("DNF_ESTIMATORS", "ESTIMATORS", "LOOP_OPTIONS", "MODES", "PLANNERS", "DNFSweep", "Sweep",
+        "bundled_sweeps", "trial_id"),
+    "trial": ("DNF_COLUMNS", "RESULT_COLUMNS", "TIME_COLUMNS", "cache_info", "clear_cache", "run_trial"),
+}
 
 __all__ = ["Sweep", "DNFSweep", "run_trial", "run_sweep", "executor", "SerialExecutor", "read_results", "write_parquet",
            "summarize", "trial_id", "bundled_sweeps", "cache_info",
            "clear_cache", "COLUMNS", "RESULT_COLUMNS", "TIME_COLUMNS", "ESTIMATORS", "PLANNERS", "MODES",
            "LOOP_OPTIONS", "DNF_COLUMNS", "DNF_ESTIMATORS"]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -4,15 +4,20 @@ Drivers take an already-open transport (a pyserial port from ``serial.serial_for
 a python-can bus); see docs/hardware.md for real port names and the emulators.
 """
 
-from .dsacon import (ControllerInfo, DSACON32m, DSAFirmwareError, MatrixInfo, PacketParser, SensitivityInfo,
-                     SensorInfo, TactileFrame, crc16, decode_frame, decode_rle, encode_packet, encode_rle)
-from .executor import GuardedTouchExecutor, HandWorld, TouchAborted, TouchPlan
-from .kinematics import DEFAULT_PADS, FINGER_AXES, PadLayout, SDH2Kinematics
-from .sdh2 import SDH2, AxisState, GripPreset, Identification, SDHFirmwareError
-from .session import (SessionLog, SessionRecord, TornRecordWarning, check_session, read_session,
-                      repair_session, replay, session_contacts)
-from .tactile import Blob, blobs_to_contacts, find_blobs, frame_to_contacts
-from .dnf_features import blob_normals, frame_normal_angles, rotation_plane_angles  # noqa: F401 (DNF input)
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "dsacon": ("ControllerInfo", "DSACON32m", "DSAFirmwareError", "MatrixInfo", "PacketParser", "SensitivityInfo",
+        "SensorInfo", "TactileFrame", "crc16", "decode_frame", "decode_rle", "encode_packet", "encode_rle"),
+    "executor": ("GuardedTouchExecutor", "HandWorld", "TouchAborted", "TouchPlan"),
+    "kinematics": ("DEFAULT_PADS", "FINGER_AXES", "PadLayout", "SDH2Kinematics"),
+    "sdh2": ("SDH2", "AxisState", "GripPreset", "Identification", "SDHFirmwareError"),
+    "session": ("SessionLog", "SessionRecord", "TornRecordWarning", "check_session", "read_session",
+        "repair_session", "replay", "session_contacts"),
+    "tactile": ("Blob", "blobs_to_contacts", "find_blobs", "frame_to_contacts"),
+    "dnf_features": ("blob_normals", "frame_normal_angles", "rotation_plane_angles"),
+}
 
 __all__ = [
     # drivers
@@ -27,3 +32,5 @@ __all__ = [
     "SessionLog", "SessionRecord", "read_session", "session_contacts", "replay",
     "check_session", "repair_session", "TornRecordWarning",
 ]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)

@@ -6,13 +6,20 @@
 >>> mesh = smap.to_mesh()                        # doctest: +SKIP
 """
 
-from .explore import PLANNERS, ExplorationRun, box_pool, explore, hand_pool, lattice_pool, ray_information
-from .metrics import chamfer_distance, fscore, surface_distances
-from .shape_map import ShapeMap
-from .slam import MovingWorld, TactileSLAM, transform_results
-from .superquadric import Superquadric, fit_superquadric
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "explore": ("PLANNERS", "ExplorationRun", "box_pool", "explore", "hand_pool", "lattice_pool", "ray_information"),
+    "metrics": ("chamfer_distance", "fscore", "surface_distances"),
+    "shape_map": ("ShapeMap",),
+    "slam": ("MovingWorld", "TactileSLAM", "transform_results"),
+    "superquadric": ("Superquadric", "fit_superquadric"),
+}
 
 __all__ = [
     "ShapeMap", "TactileSLAM", "MovingWorld", "transform_results", "explore", "ExplorationRun", "ray_information", "box_pool", "hand_pool", "lattice_pool", "PLANNERS",
     "fit_superquadric", "Superquadric", "chamfer_distance", "fscore", "surface_distances",
 ]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)

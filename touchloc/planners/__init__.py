@@ -5,16 +5,21 @@
 >>> plan.action, plan.scores                                       # doctest: +SKIP
 """
 
-from .actions import (ActionCost, GuardedTouch, HandTouch, TouchResult, TravelDistance, TravelTime, as_cost,
-                      fingers_of)
-from .candidates import CandidateGenerator, hand_pool, relative_pool, world_pool
-from .identity import IdentityPlanner
-from .lookahead import OneStepPlanner, Plan, RandomPlanner, TwoStepPlanner
-from .loop import ActiveResult, SimulatedWorld, Step, active_localization
-from .metrics import add_s, best_pose, expected_add_s, prob_error_below
-from .scenarios import Scenario, make_scenario
-from .simulate import Outcomes, execute, simulate
-from .utilities import KLDivergence, NegEntropy, TaskSuccess, Utility
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "actions": ("ActionCost", "GuardedTouch", "HandTouch", "TouchResult", "TravelDistance", "TravelTime",
+        "as_cost", "fingers_of"),
+    "candidates": ("CandidateGenerator", "hand_pool", "relative_pool", "world_pool"),
+    "identity": ("IdentityPlanner",),
+    "lookahead": ("OneStepPlanner", "Plan", "RandomPlanner", "TwoStepPlanner"),
+    "loop": ("ActiveResult", "SimulatedWorld", "Step", "active_localization"),
+    "metrics": ("add_s", "best_pose", "expected_add_s", "prob_error_below"),
+    "scenarios": ("Scenario", "make_scenario"),
+    "simulate": ("Outcomes", "execute", "simulate"),
+    "utilities": ("KLDivergence", "NegEntropy", "TaskSuccess", "Utility"),
+}
 
 __all__ = [
     "GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "as_cost",
@@ -28,7 +33,7 @@ _DEPRECATED = {"TouchFilter": "touchloc.belief.SMCFilter", "TouchLikelihood": "t
                "EstimatorUpdater": "a touchloc.belief filter as active_localization's updater"}
 
 
-def __getattr__(name):
+def _deprecated(name):
     # old names of the estimator and the touch likelihood, importable for one more release
     if name in _DEPRECATED:
         import warnings
@@ -36,6 +41,9 @@ def __getattr__(name):
         from . import update
 
         warnings.warn(f"touchloc.planners.{name} is deprecated and will be removed in the next release; use "
-                      f"{_DEPRECATED[name]}", DeprecationWarning, stacklevel=2)
+                      f"{_DEPRECATED[name]}", DeprecationWarning, stacklevel=3)
         return getattr(update, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__getattr__, __dir__ = attach(__name__, _NAMES, fallback=_deprecated)

@@ -13,28 +13,17 @@
 >>> clf = SequenceClassifier()           # n_vq=6, n_pc=8, n_llm=20 as in seed 002
 """
 
-from .classifier import (
-    LocalLinearMap,
-    NearestNeighbourClassifier,
-    NotFittedError,
-    SequenceClassifier,
-    aev_quantize,
-    align_sequences,
-    sanger_pca,
-    svd_pca,
-)
-from .plot import plot_scan
-from .protocol import (
-    ProtocolResult,
-    RejectionResult,
-    bundled_objects,
-    evaluate_protocol,
-    evaluate_rejection,
-    procedural_objects,
-    roc_auc,
-    roc_curve,
-)
-from .simulate import PadConfig, Scan, TactileScanner, simulate_dataset
+from .._lazy import attach
+
+#: where each public name is defined; imported on first use (see touchloc._lazy)
+_NAMES = {
+    "classifier": ("LocalLinearMap", "NearestNeighbourClassifier", "NotFittedError", "SequenceClassifier",
+        "aev_quantize", "align_sequences", "sanger_pca", "svd_pca"),
+    "plot": ("plot_scan",),
+    "protocol": ("ProtocolResult", "RejectionResult", "bundled_objects", "evaluate_protocol", "evaluate_rejection",
+        "procedural_objects", "roc_auc", "roc_curve"),
+    "simulate": ("PadConfig", "Scan", "TactileScanner", "simulate_dataset"),
+}
 
 __all__ = [
     "SequenceClassifier", "NearestNeighbourClassifier", "NotFittedError", "LocalLinearMap",
@@ -43,3 +32,5 @@ __all__ = [
     "evaluate_protocol", "ProtocolResult", "evaluate_rejection", "RejectionResult", "bundled_objects", "procedural_objects",
     "roc_auc", "roc_curve", "plot_scan",
 ]
+
+__getattr__, __dir__ = attach(__name__, _NAMES)
