@@ -65,3 +65,11 @@ def test_every_public_name_resolves_and_is_listed():
 
     assert {"models", "belief", "geometry", "mapping"} <= set(dir(touchloc))
     assert touchloc.models.ProximityModel.__name__ == "ProximityModel"
+
+
+def test_python_dash_m_touchloc_runs_the_command():
+    out = subprocess.run([sys.executable, "-m", "touchloc", "--version"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    import touchloc
+
+    assert out.stdout.strip() == touchloc.__version__

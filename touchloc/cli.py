@@ -102,7 +102,10 @@ def run() -> None:
     intr = _Interrupts()
     intr.install()
     atexit.register(_ignore_interrupts)  # registered first, so it runs after every other atexit callback
-    status = _main(None, intr)
+    try:
+        status = _main(None, intr)
+    except KeyboardInterrupt:  # only in the few bytecodes between the command's return and here
+        status = EXIT_INTERRUPTED
     intr.finished = status
     sys.exit(status)
 
