@@ -34,11 +34,16 @@ def _child_cpu():
     return r.ru_utime + r.ru_stime
 
 
+#: children run here, not in the checkout: ``python -c`` puts the working directory first on
+#: sys.path, where a checkout's own touchloc/ would shadow the tree under test
+_CWD = tempfile.gettempdir()
+
+
 def _run(cmd, env):
     """Wall and CPU seconds of a fresh process, and its output."""
     c0 = _child_cpu()
     t0 = time.perf_counter()
-    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, cwd=_CWD)
     wall = time.perf_counter() - t0
     if out.returncode not in (0, 1):
         raise RuntimeError(f"{cmd} failed: {out.stderr[-2000:]}")
@@ -63,7 +68,7 @@ def _cpu_until(cmd, env, marker):
     """CPU s a fresh process has used when ``marker`` appears on its stdout (Linux /proc);
     the process is then stopped. None where /proc is not available."""
     p = subprocess.Popen(cmd, env=dict(env, PYTHONUNBUFFERED="1"), stdout=subprocess.PIPE,
-                         stderr=subprocess.DEVNULL, text=True)
+                         stderr=subprocess.DEVNULL, text=True, cwd=_CWD)
     cpu = None
     try:
         for line in p.stdout:
@@ -180,6 +185,9 @@ def run(quick: bool = False) -> str:
         benv = dict(base, NUMBA_CACHE_DIR=str(tmp / "numba-base"), TOUCHLOC_CACHE_DIR=str(tmp / "touchloc-base"),
                     PYTHONPATH=str(base_tree))
         bexe = [sys.executable, "-c", "import sys; from touchloc.cli import main; sys.exit(main())"]
+        where = _run([sys.executable, "-c", "import touchloc; print(touchloc.__file__)"], benv)[2]
+        if not where.strip().startswith(str(base_tree)):
+            raise RuntimeError(f"the baseline run imports {where.strip()}, not the tree in {base_tree}")
         _run(bexe + loc[len(exe):], benv)  # compiles the baseline's kernels, fills its caches
         cenv = runs[-1][1]
         imp = [sys.executable, "-c", "import touchloc"]
