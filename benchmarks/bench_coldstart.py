@@ -230,7 +230,9 @@ def run(quick: bool = False) -> str:
             f"Process start against commit {BASELINE} (the tree before lazy imports), measured in this run "
             "with the same interpreter, each with its own warm caches: CPU s of the child (wall s), the lowest "
             "of three processes (two for the localisation). `import touchloc` and the command's start no "
-            "longer import numba, scipy and trimesh; a command imports what its work needs when it needs it.",
+            "longer import numba, scipy and trimesh; a command imports what its work needs when it needs it. "
+            "A localisation as a whole changes little: its work needs those libraries and imports them as it "
+            "starts (numba, scipy.spatial and trimesh make up most of the CPU before the estimator starts).",
             table(("process", f"{BASELINE} CPU s (wall)", "this tree CPU s (wall)", "CPU ratio"), base_rows),
         ]
     text += [
