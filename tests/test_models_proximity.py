@@ -143,6 +143,35 @@ def test_fast_position_only_is_exact_and_far_points_fall_back(objects, rng):
     assert np.allclose(m2.query_costs(far, nn, method="fast"), m2.query_costs(far, nn, method="exact"))
 
 
+@pytest.mark.parametrize("method", ["exact", "fast"])
+def test_pose_batch_pass_matches_the_per_query_path_and_respects_budgets(objects, rng, method):
+    """The compiled poses x contacts pass gives the costs of moving the contacts into each
+    frame and querying them one by one; with a budget, a pose is either complete (the same
+    costs) or stopped with a partial sum between its budget and its full sum."""
+    from touchloc.models.proximity import _to_object_frame
+
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 7, true, nor_noise=0.05)
+    poses = np.concatenate([true[None], random_poses(rng, 3000, half=0.03)])
+    P, N = _to_object_frame(poses, contacts)
+    ref = model.query_costs(P.reshape(-1, 3), N.reshape(-1, 3), method=method).reshape(len(poses), -1)
+    got, done = model._budget_costs(poses, contacts, method)
+    assert done.all()
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(model.contact_costs(poses, contacts, method=method), ref, rtol=1e-9, atol=1e-9)
+    full = ref.sum(axis=1)
+    budget = np.quantile(full, 0.3) * rng.uniform(0.5, 1.5, len(poses))
+    part, done = model._budget_costs(poses, contacts, method, budget=budget)
+    assert 0 < done.sum() < len(poses)
+    assert np.all(done == (full < budget))
+    np.testing.assert_allclose(part[done], ref[done], rtol=1e-9, atol=1e-9)
+    s = part[~done].sum(axis=1)
+    assert np.all(s >= budget[~done] * (1 - 1e-12))
+    assert np.all(s <= full[~done] * (1 + 1e-12))
+
+
 def test_bad_arguments_are_rejected(objects):
     obj = objects["mug"]
     with pytest.raises(ValidationError, match="sigma_pos"):

@@ -125,9 +125,14 @@ def _warm(obj, full):
     PP, NN = np.resize(P, (PARALLEL_MIN, 3)), np.resize(N, (PARALLEL_MIN, 3))
     # a coarse grid: a tiny build, the same compiled code as any mesh's
     model = ProximityModel(obj, 0.002, 0.1, grid_cell=0.02, grid_margin=0.01)
+    from .models import Contacts
+
+    one, many = np.eye(4)[None], np.repeat(np.eye(4)[None], PARALLEL_MIN // 2, axis=0)
     for method in ("exact", "fast"):
         model.query_costs(P, N, method=method)
         model.query_costs(PP, NN, method=method)
+        for poses in (one, many):  # the poses x contacts pass of the estimators, both forms
+            model.contact_costs(poses, Contacts(P, N), method=method)
     if full:
         model.query_costs(P, None, method="fast")  # position-only grid lists
         model.query_costs(P, N, method="bruteforce")

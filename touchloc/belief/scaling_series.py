@@ -215,14 +215,18 @@ class ScalingSeries:
 
     def _annealed_loglik(self, X, contacts, tau: float, prune: bool = True):
         """log p(contacts | X) / tau for one scale. With ``prune`` (intermediate scales),
-        evaluated contact group by contact group, with the particles that the threshold
-        prune will drop whatever their other contacts say left unfinished.
+        a particle's contacts are evaluated only until the threshold prune is sure to drop
+        it whatever its other contacts say.
 
         Costs are non-negative, so a particle whose partial cost already exceeds the full
-        cost of the best particle by 2 tau log(1 / prune_ratio) is pruned. The best
-        particles are evaluated completely first to bound the best cost from above; the
-        prune keeps exactly the particles it keeps on complete evaluations, with the same
-        weights. The dropped ones get their partial value (still below the threshold).
+        cost of the best particle by 2 tau log(1 / prune_ratio) is pruned. A first group
+        of contacts is evaluated for every particle and the best particles by it
+        completely, which bounds the best cost from above; every other particle then
+        gets the rest of its contacts, one at a time, with the budget that bound leaves
+        it (and each nearest-face search stops as soon as no face can be within the
+        budget). The prune keeps exactly the particles it keeps on complete evaluations,
+        with the same weights; the dropped ones get their partial value (above the threshold,
+        below their full value).
         """
         model = self.model
         K, N = len(contacts), len(X)
@@ -230,24 +234,25 @@ class ScalingSeries:
                 or type(model).contact_costs is not ProximityModel.contact_costs):
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
-        costs = model._contact_costs
         method = model.method
         if method == "auto":  # as one call over every pair would choose
             method = "fast" if N * K >= AUTO_FAST_PAIRS else "exact"
-        if not prune or self.prune != "threshold" or K < 4 or N < 2000:
-            return finite_loglik(-0.5 * costs(X, contacts, method).sum(axis=1) / tau)
-        groups = np.array_split(np.arange(K), 4)
-        cost = costs(X, contacts[groups[0]], method).sum(axis=1)
-        rest = np.concatenate(groups[1:])
+        costs = model._budget_costs
+        if not prune or self.prune != "threshold" or N < 64:
+            return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
+        first = np.arange(max(1, K // 4))
+        rest = np.arange(len(first), K)
+        cost = costs(X, contacts[first], method)[0].sum(axis=1)
+        if len(rest) == 0:
+            return finite_loglik(-0.5 * cost / tau)
         best = np.argsort(cost)[:32]
-        upper = float(np.min(cost[best] + costs(X[best], contacts[rest], method).sum(axis=1)))
+        upper = float(np.min(cost[best] + costs(X[best], contacts[rest], method)[0].sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
-        alive = np.flatnonzero(cost <= limit)
-        for g in groups[1:]:
-            if len(alive) == 0:
-                break
-            cost[alive] += costs(X[alive], contacts[g], method).sum(axis=1)
-            alive = alive[cost[alive] <= limit]
+        # a stopped particle's partial sum reaches its budget: with this margin, a value
+        # strictly above the threshold (beyond rounding) and still below its full cost
+        limit += 1e-9 * (1.0 + limit)
+        more, _ = costs(X, contacts[rest], method, budget=np.maximum(limit - cost, 0.0))
+        cost += more.sum(axis=1)
         return finite_loglik(-0.5 * cost / tau)
 
     def _prune(self, poses, log_w):

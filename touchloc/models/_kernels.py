@@ -372,41 +372,54 @@ class CandidateGrid:
 
 
 @nb.njit(inline="always", **_NB)
-def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
-              plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend):
+def _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj, px, py, pz, nx, ny, nz, w, descend,
+               best):
+    """The best face of the point's cell list (and the greedy descent from it) below ``best``.
+
+    Returns (listed, cost, face): ``listed`` is False outside the grid or in a cell without
+    a list; ``face`` is -1 (and ``cost`` the given ``best``) when no listed face is below it.
+    """
     ix = int(np.floor((px - lo[0]) / h))
     iy = int(np.floor((py - lo[1]) / h))
     iz = int(np.floor((pz - lo[2]) / h))
-    best = np.inf
     bf = -1
     inside = 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_
     cell = (ix * ny_ + iy) * nz_ + iz
-    if inside and offsets[cell + 1] > offsets[cell]:
-        for j in range(offsets[cell], offsets[cell + 1]):
-            f = ids[j]
-            if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
-                continue
-            c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
-            if c < best:
-                best = c
-                bf = f
-        if descend:
-            # greedy descent over vertex-adjacent faces: on smooth surfaces the face
-            # whose normal best matches lies a few faces away from a sampled winner
-            for _ in range(256):
-                moved = False
-                for j in range(adj_off[bf], adj_off[bf + 1]):
-                    g = adj[j]
-                    if _normal_term(nrm, g, nx, ny, nz, w) >= best:
-                        continue
-                    c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
-                    if c < best:
-                        best = c
-                        bf = g
-                        moved = True
-                if not moved:
-                    break
-    else:  # outside the grid, or a cell too crowded to list: exact through the tree
+    if not (inside and offsets[cell + 1] > offsets[cell]):
+        return False, best, bf
+    for j in range(offsets[cell], offsets[cell + 1]):
+        f = ids[j]
+        if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
+            continue
+        c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+        if c < best:
+            best = c
+            bf = f
+    if descend and bf >= 0:
+        # greedy descent over vertex-adjacent faces: on smooth surfaces the face
+        # whose normal best matches lies a few faces away from a sampled winner
+        for _ in range(256):
+            moved = False
+            for j in range(adj_off[bf], adj_off[bf + 1]):
+                g = adj[j]
+                if _normal_term(nrm, g, nx, ny, nz, w) >= best:
+                    continue
+                c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
+                if c < best:
+                    best = c
+                    bf = g
+                    moved = True
+            if not moved:
+                break
+    return True, best, bf
+
+
+@nb.njit(inline="always", **_NB)
+def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+              plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend):
+    listed, best, bf = _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                                  px, py, pz, nx, ny, nz, w, descend, np.inf)
+    if not listed:  # outside the grid, or a cell too crowded to list: exact through the tree
         best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                                      px, py, pz, nx, ny, nz, w, np.inf)
     return best, bf
@@ -590,3 +603,144 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
                        tree.nhi, tree.left, tree.right, tree.start, tree.count, P, Nn,
                        grid.w if use_n else 0.0, use_n, use_n)
     return tree.face_id[f], c
+
+
+# ---------------------------------------------------------------------------------------
+# poses x contacts in one pass, with an optional per-pose budget
+#: how a pair is evaluated by :func:`pose_costs`
+EXACT, GRID = 0, 1
+
+
+@nb.njit(inline="always", **_NB)
+def _pair_cost(mode, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+               plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, rem):
+    """min(cost, rem) of one object-frame query (rem: what the pose has left of its budget)."""
+    if mode == GRID:
+        # the list's own answer whatever the budget (the descent starts from its best face)
+        listed, best, _ = _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                                     px, py, pz, nx, ny, nz, w, descend, np.inf)
+        if listed:
+            return min(best, rem)
+    best, _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                px, py, pz, nx, ny, nz, w, rem)
+    return best
+
+
+@nb.njit(inline="always", **_NB)
+def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off,
+              adj, plo, phi, nlo, nhi, left, right, start, count, out):
+    """Costs of pose i for every contact, in order, until they reach the pose's budget.
+
+    Returns True when every contact was evaluated (their sum is below the budget);
+    otherwise the sum of out[i] is at least the budget and the remaining entries are 0.
+    """
+    K = P.shape[0]
+    b = budget[i]
+    s = 0.0
+    for k in range(K):
+        out[i, k] = 0.0
+    for k in range(K):
+        # object frame: R^T (p - t) and R^T n
+        dx = P[k, 0] - poses[i, 0, 3]
+        dy = P[k, 1] - poses[i, 1, 3]
+        dz = P[k, 2] - poses[i, 2, 3]
+        px = poses[i, 0, 0] * dx + poses[i, 1, 0] * dy + poses[i, 2, 0] * dz
+        py = poses[i, 0, 1] * dx + poses[i, 1, 1] * dy + poses[i, 2, 1] * dz
+        pz = poses[i, 0, 2] * dx + poses[i, 1, 2] * dy + poses[i, 2, 2] * dz
+        nx = ny = nz = 0.0
+        if use_n:
+            nx = poses[i, 0, 0] * N[k, 0] + poses[i, 1, 0] * N[k, 1] + poses[i, 2, 0] * N[k, 2]
+            ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
+            nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
+        rem = b - s
+        c = _pair_cost(mode, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                       plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
+                       w if use_n else 0.0, use_n, rem)
+        out[i, k] = c
+        if c >= rem:
+            return False
+        s += c
+    return True
+
+
+@nb.njit(parallel=True, **_NB)
+def _pose_costs(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+                plo, phi, nlo, nhi, left, right, start, count):
+    n = poses.shape[0]
+    out = np.empty((n, P.shape[0]))
+    done = np.empty(n, np.bool_)
+    for i in nb.prange(n):
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
+                            adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+    return out, done
+
+
+@nb.njit(**_NB)
+def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off,
+                       adj, plo, phi, nlo, nhi, left, right, start, count):
+    n = poses.shape[0]
+    out = np.empty((n, P.shape[0]))
+    done = np.empty(n, np.bool_)
+    for i in range(n):
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
+                            adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+    return out, done
+
+
+_NO_GRID = None
+
+
+def _no_grid():
+    """Stand-in grid arrays for the exact mode (never read)."""
+    global _NO_GRID
+    if _NO_GRID is None:
+        z = np.zeros(1, np.int64)
+        _NO_GRID = (np.zeros(3), 1.0, 0, 0, 0, np.zeros(2, np.int64), z, np.zeros(2, np.int64), z)
+    return _NO_GRID
+
+
+def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None = None, budget=None):
+    """Joint costs (m^2, as :func:`query_joint`) of world contacts seen from each pose.
+
+    Parameters
+    ----------
+    tree : BVH
+    poses : (n, 4, 4) float
+        Rigid T_world_object (trusted: not checked).
+    P, N : (K, 3) float
+        World contact points and unit normals (N None: position only).
+    w : float
+        Normal weight sigma_pos^2 / sigma_nor^2 (0: position only).
+    grid : CandidateGrid, optional
+        The ``fast`` method: the minimum over the cell's candidate list where there is
+        one, the tree elsewhere. Without it: exact, through the tree.
+    budget : (n,) float, optional
+        Per pose: stop evaluating its contacts once their sum reaches this (m^2).
+
+    Returns
+    -------
+    costs : (n, K) float
+        Per-pair costs; a pose stopped by its budget has its evaluated pairs (the last
+        one capped at what remained) and zeros after, so its row sums to at least its
+        budget.
+    done : (n,) bool
+        False for the poses stopped by their budget.
+    """
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    use_n = N is not None and w > 0
+    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    n = len(poses)
+    b = np.full(n, np.inf) if budget is None else np.ascontiguousarray(budget, dtype=np.float64).reshape(n)
+    if grid is None:
+        mode = EXACT
+        g = _no_grid()
+    else:
+        mode = GRID
+        g = (grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2], grid.offsets, grid.ids, grid.adj_off,
+             grid.adj)
+    if n == 0 or len(P) == 0:
+        return np.zeros((n, len(P))), np.ones(n, bool)
+    kernel = _pose_costs if n * len(P) >= PARALLEL_MIN else _pose_costs_serial
+    return kernel(mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, tree.tri, tree.nrm, *g,
+                  tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)

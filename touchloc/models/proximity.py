@@ -175,10 +175,35 @@ class ProximityModel(MeasurementModel):
     def _contact_costs(self, poses, contacts, method=None):
         """:meth:`contact_costs` for poses and contacts an estimator has already checked
         (its own particles): no validation of the (N, 4, 4) batch."""
-        P, Nrm = _to_object_frame(poses, contacts)
-        use_n = Nrm is not None and self.sigma_nor is not None
-        c = self.query_costs(P.reshape(-1, 3), Nrm.reshape(-1, 3) if use_n else None, method=method)
-        return c.reshape(len(poses), len(contacts))
+        method = method or self.method
+        if method == "bruteforce":
+            P, Nrm = _to_object_frame(poses, contacts)
+            use_n = Nrm is not None and self.sigma_nor is not None
+            c = self.query_costs(P.reshape(-1, 3), Nrm.reshape(-1, 3) if use_n else None, method=method)
+            return c.reshape(len(poses), len(contacts))
+        return self._budget_costs(poses, contacts, method)[0]
+
+    def _budget_costs(self, poses, contacts, method=None, budget=None):
+        """d_M^2 per pose and contact (N, K) in one compiled pass (the contacts are moved
+        into each pose's frame inside it), and which poses were evaluated completely.
+
+        ``budget`` (N,) in d_M^2: a pose stops once the sum of its costs reaches its
+        budget; its row then sums to at least the budget (the pairs after the one that
+        reached it are 0) and its ``done`` entry is False. Every completed row is what
+        :meth:`contact_costs` returns with the same method.
+        """
+        method = method or self.method
+        use_n = contacts.normals is not None and self.sigma_nor is not None
+        w = self._weight(use_n)
+        if method == "auto":
+            method = "fast" if len(poses) * len(contacts) >= AUTO_FAST_PAIRS else "exact"
+        if method not in ("exact", "fast"):
+            raise ValidationError(f"method must be 'exact' or 'fast' here, got {method!r}")
+        s2 = self.sigma_pos**2
+        grid = self._grid(w) if method == "fast" else None
+        c, done = K.pose_costs(self.obj.bvh(w), poses, contacts.points, contacts.normals if use_n else None, w,
+                               grid=grid, budget=None if budget is None else np.asarray(budget) * s2)
+        return c / s2, done
 
     def log_likelihood(self, poses, contacts: Contacts = None, temperature: float = 1.0) -> np.ndarray:
         """log p(contacts | pose) / temperature for each pose, (N,).
