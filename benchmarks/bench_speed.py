@@ -9,7 +9,9 @@ the table reports per-trial time ratios (baseline / current).
 
 Run directly for one worker (``python benchmarks/bench_speed.py --worker``, reading JSON
 trial requests on stdin) or through ``benchmarks/run.py --only speed``. The environment
-variable ``TOUCHLOC_BENCH_THREADS`` sets the worker threads (numba; default: all cores).
+variable ``TOUCHLOC_BENCH_THREADS`` sets the worker threads (numba; default: all cores);
+``TOUCHLOC_BENCH_BASELINE`` another baseline commit (default: ``BASELINE``). A third
+worker runs this checkout on one thread, for the speed-up that the threads give.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 
 TITLE = "Localisation speed with few contacts (vs. the baseline commit)"
 
-BASELINE = "f4e652e"
+BASELINE = os.environ.get("TOUCHLOC_BENCH_BASELINE", "f4e652e")
 ROOT = Path(__file__).resolve().parent.parent
 #: meshes whose profile guided the work, and meshes held out from it
 TUNED = ["mug", "milk"]
@@ -144,18 +146,27 @@ def _cover(m, cube, k, seed):
         return out
 
     pairs = [0]
-    costs = m._contact_costs
+    name = "_budget_costs" if hasattr(m, "_budget_costs") else "_contact_costs"
+    costs = getattr(m, name)
 
     def counted(X, contacts, *args, **kw):
-        pairs[0] += len(X) * len(contacts)
-        return costs(X, contacts, *args, **kw)
+        out = costs(X, contacts, *args, **kw)
+        if name == "_contact_costs":
+            pairs[0] += len(X) * len(contacts)
+            return out
+        cost, done = out
+        # a row stopped by its budget: the pairs up to its last non-zero one were evaluated
+        stopped = cost[~done] != 0
+        last = stopped.shape[1] - np.argmax(stopped[:, ::-1], axis=1)
+        pairs[0] += int(done.sum()) * len(contacts) + int(np.where(stopped.any(axis=1), last, 1).sum())
+        return out
 
     ss._even_density_cover = timed
-    m._contact_costs = counted
+    setattr(m, name, counted)
     try:
         b = ss.localize(c, cube)
     finally:
-        del m._contact_costs
+        delattr(m, name)
     spent["pairs_fraction"] = pairs[0] / (b.info["evaluations"] * len(c))
     return spent
 
@@ -252,6 +263,20 @@ def run(quick: bool = False) -> str:
                     if rb:
                         row.append(f"{np.median(np.array([r['time'] for r in rb]) / t_off):.1f}x")
                 rows.append(row)
+            # threads: the same trials on one thread
+            thread_rows = []
+            n_thr = threads or os.cpu_count() or 1
+            if n_thr > 1:
+                one = _Worker(ROOT, 1)
+                try:
+                    for mesh, k in (("mug", 5), ("mug", 10), ("can", 30)) if not quick else (("mug", 10),):
+                        seed = 5000 + 100 * k
+                        t1 = one.ask(mesh=mesh, k=k, seed=seed)["time"]
+                        tn = cur.ask(mesh=mesh, k=k, seed=seed)["time"]
+                        thread_rows.append([mesh, k, f"{t1:.2f}", f"{tn:.2f}", f"{t1 / tn:.2f}x",
+                                            f"{100 * t1 / tn / n_thr:.0f} %"])
+                finally:
+                    one.close()
             # components: the cover step alone, and the likelihood alone
             cov = [cur.ask(kind="cover", mesh=mesh, k=k, seed=7000 + k)
                    for mesh, k in (("mug", 5), ("milk", 10))]
@@ -307,6 +332,13 @@ def run(quick: bool = False) -> str:
         table(["mesh", "contacts", "poses", "exact M/s", "fast M/s", "fast / exact", "fast - exact (p99 / max / min)"]
               + (["exact vs baseline", "fast vs baseline"] if base_path else []), lik_rows),
     ]
+    if thread_rows:
+        text += [f"Threads: one localisation (same seed) on 1 thread and on {threads or os.cpu_count()} (numba "
+                 "threads of the likelihood and cover kernels; `NUMBA_NUM_THREADS` per worker process). "
+                 "Efficiency is the speed-up divided by the thread count; on a shared machine the other "
+                 "processes take part of the second core.",
+                 table(["mesh", "contacts", "1 thread s", f"{threads or os.cpu_count()} threads s", "speed-up",
+                        "efficiency"], thread_rows)]
     return "\n\n".join(text)
 
 

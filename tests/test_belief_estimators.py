@@ -205,3 +205,24 @@ def test_dynamic_scaling_series_follows_a_moving_object(box):
         s2.initialize(region)
         s2.update(face_contacts(box, true, per_face=1, rng=1))
         s2.predict()
+
+
+def test_identify_skips_the_posterior_stage_unless_beliefs_are_returned(objects):
+    """The evidence comes from the last cover: without beliefs, identify runs no posterior
+    stage (the same answer as asking for covers), and returned beliefs are posterior samples."""
+    from touchloc.belief import identify
+
+    rng = np.random.default_rng(3)
+    region = PoseRegion.box((0, 0, 0), 0.05, "full")
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = objects["milk"].sample_surface(8, rng=rng)
+    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    models = {name: ProximityModel(objects[name], 0.002, np.deg2rad(5)) for name in ("milk", "mug")}
+    small = dict(max_particles=800, n_initial=400)
+    post = identify(models, contacts, region, rng=0, **small)
+    same, covers = identify(models, contacts, region, rng=0, return_beliefs=True, final_moves=0, **small)
+    assert post == same
+    assert max(post, key=post.get) == "milk"
+    assert all("cover" not in b.info for b in covers.values())
+    _, beliefs = identify(models, contacts, region, rng=0, return_beliefs=True, **small)
+    assert all("cover" in b.info for b in beliefs.values())

@@ -64,7 +64,9 @@ def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | 
     return_beliefs : bool
         Also return each object's pose belief.
     **ss_kwargs
-        Passed to :class:`ScalingSeries` (defaults: ``IDENTIFY_DEFAULTS``).
+        Passed to :class:`ScalingSeries` (defaults: ``IDENTIFY_DEFAULTS``; the posterior
+        stage after the last scale, ``final_moves``, is off unless beliefs are returned:
+        the evidence comes from the last cover, so the stage would not change the answer).
 
     Returns
     -------
@@ -101,7 +103,7 @@ def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | 
             raise ValidationError("prior must give non-negative probabilities, not all zero")
         with np.errstate(divide="ignore"):
             log_prior = np.log(p / p.sum())
-    ss_kwargs = {**IDENTIFY_DEFAULTS, **ss_kwargs}
+    ss_kwargs = {**IDENTIFY_DEFAULTS, **({} if return_beliefs else {"final_moves": 0}), **ss_kwargs}
     log_post, beliefs = [], {}
     for name, lp in zip(names, log_prior):
         try:
