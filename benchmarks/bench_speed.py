@@ -74,7 +74,8 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         '10 %). Measured but not made default: a particle cap of 6000 instead of 20000 cuts '
         '5-contact CPU time 1.6-2.5x (and mug/lemon at 10 contacts up to 2x) with ADD-S '
         'below 5 mm in 23 of 24 trials (mug, can, milk, lemon; 5 and 10 contacts; 3 seeds) '
-        'against 24 of 24; the one miss went from 4.7 to 5.1 mm.')
+        'against 24 of 24; the one miss went from 4.7 to 5.1 mm.'
+        ' Against the tree just before this step (commit 666723a, `TOUCHLOC_BENCH_BASELINE=666723a python benchmarks/bench_speed.py --quick`, same workers, load average 11-22 on 2 cores): mug 1.4x at 5 and at 10 contacts, 1.1x at 30, can 1.1x at 10 contacts, `identify` 1.6x.')
 HELD_OUT = ["can", "lemon", "bread", "cereal"]
 
 

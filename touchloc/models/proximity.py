@@ -176,7 +176,8 @@ class ProximityModel(MeasurementModel):
         """:meth:`contact_costs` for poses and contacts an estimator has already checked
         (its own particles): no validation of the (N, 4, 4) batch."""
         method = method or self.method
-        if method == "bruteforce":
+        if method == "bruteforce" or type(self).query_costs is not ProximityModel.query_costs:
+            # the reference, or a subclass's own queries: moved into each frame, then queried
             P, Nrm = _to_object_frame(poses, contacts)
             use_n = Nrm is not None and self.sigma_nor is not None
             c = self.query_costs(P.reshape(-1, 3), Nrm.reshape(-1, 3) if use_n else None, method=method)
