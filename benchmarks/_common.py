@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import io
 import os
+import subprocess
+import tarfile
 import time
 import warnings
 from pathlib import Path
@@ -98,3 +101,20 @@ def run_trials(name: str, trials: list, quick: bool):
     how += f". Tidy rows: `{path.relative_to(RESULTS.parent.parent)}`" + (" (`touchloc report` draws them)." if setup
                                                                           else ".")
     return rows, how
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def baseline_tree(rev: str, dest) -> Path | None:
+    """The touchloc package of commit ``rev``, unpacked under ``dest``, to put on
+    PYTHONPATH of a process that measures the baseline in the same run (None without git
+    or without that commit)."""
+    try:
+        data = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "touchloc"],
+                              check=True, capture_output=True).stdout
+        with tarfile.open(fileobj=io.BytesIO(data)) as tf:
+            tf.extractall(Path(dest), filter="data")
+    except (OSError, subprocess.CalledProcessError, tarfile.TarError):
+        return None
+    return Path(dest)

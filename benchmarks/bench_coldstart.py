@@ -12,7 +12,6 @@ import re
 import resource
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 import warnings
@@ -20,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import quiet_load, table
+from _common import baseline_tree, quiet_load, table
 
 TITLE = "Cold start: compiled kernels and per-mesh structures on disk"
 
-ROOT = Path(__file__).resolve().parent.parent
 #: the tree before lazy imports (every subpackage, numba, trimesh and scipy at ``import touchloc``)
 BASELINE = "666723a"
 
@@ -48,20 +46,6 @@ def _run(cmd, env):
     if out.returncode not in (0, 1):
         raise RuntimeError(f"{cmd} failed: {out.stderr[-2000:]}")
     return wall, _child_cpu() - c0, out.stdout + out.stderr
-
-
-def _baseline_tree(tmp: Path) -> Path | None:
-    """The touchloc package of BASELINE, unpacked under tmp (None without git)."""
-    try:
-        data = subprocess.run(["git", "-C", str(ROOT), "archive", BASELINE, "touchloc"],
-                              check=True, capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    arch = tmp / "base.tar"
-    arch.write_bytes(data)
-    with tarfile.open(arch) as tf:
-        tf.extractall(tmp / "base")
-    return tmp / "base"
 
 
 def _cpu_until(cmd, env, marker):
@@ -180,7 +164,7 @@ def run(quick: bool = False) -> str:
 
     # the same against the baseline tree: import, command start, localisation with warm caches
     base_rows = []
-    base_tree = _baseline_tree(tmp)
+    base_tree = baseline_tree(BASELINE, tmp / "base")
     if base_tree is not None:
         benv = dict(base, NUMBA_CACHE_DIR=str(tmp / "numba-base"), TOUCHLOC_CACHE_DIR=str(tmp / "touchloc-base"),
                     PYTHONPATH=str(base_tree))

@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from _common import quiet_load, table
+from _common import baseline_tree, quiet_load, table
 
 TITLE = "Shape mapping from touch"
 
@@ -229,20 +229,14 @@ def _speed(obj, quick):
     import os
     import subprocess
     import sys
-    import tarfile
     import tempfile
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
     versions = [("this tree", str(root))]
     tmp = tempfile.TemporaryDirectory()
-    try:
-        arch = subprocess.run(["git", "-C", str(root), "archive", BASELINE, "touchloc"], capture_output=True, check=True)
-        with tarfile.open(fileobj=__import__("io").BytesIO(arch.stdout)) as tf:
-            tf.extractall(tmp.name, filter="data")
+    if baseline_tree(BASELINE, tmp.name) is not None:
         versions.append((f"baseline {BASELINE}", tmp.name))
-    except (OSError, subprocess.CalledProcessError, tarfile.TarError):
-        pass
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     got = {}
     for label, path in versions:

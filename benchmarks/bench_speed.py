@@ -20,7 +20,6 @@ import json
 import os
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 import warnings
@@ -225,20 +224,6 @@ class _Worker:
         self.p.wait(timeout=60)
 
 
-def _baseline_tree(tmp: Path) -> Path | None:
-    """The touchloc package of the baseline commit, unpacked under tmp (None without git)."""
-    try:
-        data = subprocess.run(["git", "-C", str(ROOT), "archive", BASELINE, "touchloc"],
-                              check=True, capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    arch = tmp / "base.tar"
-    arch.write_bytes(data)
-    with tarfile.open(arch) as tf:
-        tf.extractall(tmp / "base")
-    return tmp / "base"
-
-
 def _fmt_row(label, k, base, cur):
     tb = np.array([r["time"] for r in base]) if base else None
     tc = np.array([r["time"] for r in cur])
@@ -254,7 +239,7 @@ def _fmt_row(label, k, base, cur):
 
 def run(quick: bool = False) -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from _common import table
+    from _common import baseline_tree, table
 
     threads = int(os.environ.get("TOUCHLOC_BENCH_THREADS", "0")) or None
     # (mesh, contacts, trials): few trials at 5 contacts, where the baseline takes longest
@@ -264,7 +249,7 @@ def run(quick: bool = False) -> str:
         cases = [(m, k, 2 if k == 5 else 3) for m in TUNED for k in (5, 10, 30)]
         cases += [(m, 10, 2) for m in HELD_OUT[:2]] + [(m, 30, 2) for m in HELD_OUT[2:]]
     with tempfile.TemporaryDirectory() as tmpd:
-        base_path = _baseline_tree(Path(tmpd))
+        base_path = baseline_tree(BASELINE, Path(tmpd) / "base")
         cur = _Worker(ROOT, threads)
         base = _Worker(base_path, threads) if base_path else None
         rows, load = [], [os.getloadavg()[0]]
