@@ -59,6 +59,19 @@ def _from_dict(d, default_kind="localization"):
     return target(**d)
 
 
+def _named_choices(value, field_name, what, allowed) -> list:
+    """A sweep field of names or ``{"name": ..., **options}`` dicts, as a list of dicts."""
+    out = []
+    for e in _as_list(value, field_name):
+        if not isinstance(e, (str, dict)):
+            raise ValidationError(f"sweep {field_name} must be names or dicts, got {type(e).__name__}")
+        e = {"name": e} if isinstance(e, str) else dict(e)
+        if e.get("name") not in allowed:
+            raise ValidationError(f"{what} name must be one of {allowed}, got {e.get('name')!r}")
+        out.append(e)
+    return out
+
+
 def _as_list(x, name):
     if isinstance(x, (str, int, float, dict, os.PathLike)):
         x = [x]
@@ -144,15 +157,7 @@ class Sweep:
             if not isinstance(m, (str, os.PathLike)):
                 raise ValidationError(f"sweep meshes must be bundled names or paths, got {type(m).__name__} {m!r}"[:160])
         self.meshes = [os.fspath(m) for m in meshes]
-        ests = []
-        for e in _as_list(self.estimators, "estimators"):
-            if not isinstance(e, (str, dict)):
-                raise ValidationError(f"sweep estimators must be names or dicts, got {type(e).__name__}")
-            e = {"name": e} if isinstance(e, str) else dict(e)
-            if e.get("name") not in ESTIMATORS:
-                raise ValidationError(f"estimator name must be one of {ESTIMATORS}, got {e.get('name')!r}")
-            ests.append(e)
-        self.estimators = ests
+        self.estimators = _named_choices(self.estimators, "estimators", "estimator", ESTIMATORS)
         self.contacts = [as_count(k, "sweep contacts", max=10_000, why="contacts or touches per trial")
                          for k in _as_list(self.contacts, "contacts")]
         if any(k < 1 for k in self.contacts):
@@ -164,15 +169,7 @@ class Sweep:
         bad = set(self.modes) - set(MODES)
         if bad:
             raise ValidationError(f"modes must be among {MODES}, got {sorted(bad)}")
-        planners = []
-        for pl in _as_list(self.planners, "planners"):
-            if not isinstance(pl, (str, dict)):
-                raise ValidationError(f"sweep planners must be names or dicts, got {type(pl).__name__}")
-            pl = {"name": pl} if isinstance(pl, str) else dict(pl)
-            if pl.get("name") not in PLANNERS:
-                raise ValidationError(f"planner name must be one of {PLANNERS}, got {pl.get('name')!r}")
-            planners.append(pl)
-        self.planners = planners
+        self.planners = _named_choices(self.planners, "planners", "planner", PLANNERS)
         if not isinstance(self.loop, dict):
             raise ValidationError(f"sweep loop must be a dict of active_localization options, got "
                                   f"{type(self.loop).__name__}")
