@@ -30,16 +30,20 @@ _NB = dict(cache=numba_cache_enabled(__file__), nogil=True)
 
 
 @nb.njit(inline="always", **_NB)
+def _d2(A, j, X, q):
+    """Squared distance between row j of A and row q of X."""
+    d = 0.0
+    for k in range(X.shape[1]):
+        t = A[j, k] - X[q, k]
+        d += t * t
+    return d
+
+
+@nb.njit(inline="always", **_NB)
 def _in_list(A, off, nbr, X, q, a, r2):
-    D = X.shape[1]
     c = 0
     for jj in range(off[a], off[a + 1]):
-        j = nbr[jj]
-        d = 0.0
-        for k in range(D):
-            t = A[j, k] - X[q, k]
-            d += t * t
-        if d <= r2:
+        if _d2(A, nbr[jj], X, q) <= r2:
             c += 1
     return c
 
@@ -86,14 +90,9 @@ def _csr(pairs, n):
 
 @nb.njit(inline="always", **_NB)
 def _capped_one(A, X, q, r2, cap):
-    D = X.shape[1]
     c = 0
     for j in range(A.shape[0]):
-        d = 0.0
-        for k in range(D):
-            t = A[j, k] - X[q, k]
-            d += t * t
-        if d <= r2:
+        if _d2(A, j, X, q) <= r2:
             c += 1
             if c >= cap:
                 break
