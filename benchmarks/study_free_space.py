@@ -28,20 +28,6 @@ from _common import quiet_load
 from bench_mapping import _procedural, touches_to, trial
 
 
-def _positions_only():
-    """Make SimulatedWorld report contact positions without normals (for this process)."""
-    from touchloc.models import Contacts
-    from touchloc.planners import SimulatedWorld, TouchResult
-
-    execute = SimulatedWorld.execute
-
-    def positions_only(self, action):
-        return [TouchResult(r.touch, r.travel, None if r.contact is None else Contacts(r.contact.points, None))
-                for r in execute(self, action)]
-
-    SimulatedWorld.execute = positions_only
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--meshes", nargs="+", default=["bread", "can", "cereal", "bunny"])
@@ -52,8 +38,6 @@ def main(argv=None):
     ap.add_argument("--no-normals", action="store_true", help="contacts report positions only")
     ap.add_argument("--json", default=None, help="write the per-trial rows here")
     a = ap.parse_args(argv)
-    if a.no_normals:
-        _positions_only()
     cps = tuple(range(10, a.touches + 1, 10))
     proc = _procedural()
     rows, t0 = [], time.perf_counter()
@@ -61,7 +45,7 @@ def main(argv=None):
         obj = proc[name] if name in proc else quiet_load(name)
         for s in a.seeds:
             f, n = (trial(obj, s, planner=a.planner, free_space=fs, touches=a.touches, checkpoints=cps,
-                          calib_at=(30, a.touches)) for fs in (True, False))
+                          calib_at=(30, a.touches), normals=not a.no_normals) for fs in (True, False))
             row = dict(mesh=name, seed=s, reach=touches_to(f["chamfer"], n["chamfer"][a.ref]),
                        reach_last=touches_to(f["chamfer"], n["chamfer"][a.touches]),
                        free={k: round(v * 1e3, 2) for k, v in f["chamfer"].items()},
