@@ -179,6 +179,32 @@ def test_free_space_pushes_the_gpis_surface_out_of_swept_space(sphere):
     assert np.all(with_free.signed_distance(swept) > -0.0005)  # the sweep says otherwise
 
 
+class _PositionsOnly:
+    """A world whose contacts carry no normals."""
+
+    def __init__(self, world):
+        self.world = world
+
+    def execute(self, action):
+        return [TouchResult(r.touch, r.travel, None if r.contact is None else Contacts(r.contact.points, None))
+                for r in self.world.execute(action)]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_without_normals_free_space_keeps_the_explorer_from_repeating_misses(seed):
+    # a flat box touched by a sensor that reports positions only: without free space a miss
+    # teaches the map nothing, so the explorer aims again where the map wrongly puts surface
+    box = _quiet(trimesh.creation.box((0.10, 0.07, 0.02)), "box")
+    hits = {}
+    for free in (True, False):
+        world = _PositionsOnly(SimulatedWorld(box, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=seed))
+        run = explore(world, _bounds(box), 40, rng=seed, free_space=free)
+        assert run.map.contacts.normals is None
+        hits[free] = sum(r.hit for r in run.results)
+    assert hits[True] >= 0.85 * 40
+    assert hits[True] > hits[False]
+
+
 def test_occupancy_free_space_lowers_and_contacts_raise(sphere):
     lo, hi = _bounds(sphere)
     smap = ShapeMap((lo, hi), method="occupancy", resolution=32)
