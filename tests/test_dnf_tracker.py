@@ -129,16 +129,36 @@ def test_run_matches_step_by_step():
     np.testing.assert_allclose(mem[-1], b.memory)
 
 
-def test_integral_action_learns_the_odometrys_under_estimate():
+def test_the_odometrys_under_estimate_is_learnt():
     from touchloc.dnf import generate_rotation_dataset
 
     # the odometry reports 92 % of each turn: the right rate is 0.08 / 0.92 = 0.087 per radian
     ds = generate_rotation_dataset(6, revolutions=3.0, under_estimate=(0.08, 0.08), slip_std=0.0, rng=0)
-    tr = OrientationTracker()
-    tr.run(ds)
-    assert 0.02 < tr.rate < 0.12
-    off = OrientationTracker(rate_gain=0.0)
-    off.run(ds)
-    assert off.rate == 0.0
+    samples = list(ds.samples())
+    rates = {}
+    for mode in ("mean", "integral"):
+        tr = OrientationTracker(rate_mode=mode)
+        for a, odo in samples[:100]:             # about one turn
+            tr.step(a, odo)
+        early = tr.rate
+        for a, odo in samples[100:]:
+            tr.step(a, odo)
+        rates[mode] = (early, tr.rate)
+    # both learn it; the mean correction per radian (the default) learns it faster
+    assert 0.06 < rates["mean"][1] < 0.11
+    assert 0.02 < rates["integral"][1] < 0.11
+    assert rates["mean"][0] > 0.035 and rates["mean"][0] > 2 * rates["integral"][0]
+    for off in (OrientationTracker(rate_mode="off"), OrientationTracker(rate_mode="integral", rate_gain=0.0)):
+        off.run(ds)
+        assert off.rate == 0.0
     tr.reset()
     assert tr.rate == 0.0
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(rate_mode="fast"), "rate_mode must be"),
+    (dict(rate_prior=0.0), "rate_prior must be > 0"),
+])
+def test_rate_learning_parameters_are_validated(bad, match):
+    with pytest.raises(ValidationError, match=match):
+        OrientationTracker(**bad)
