@@ -112,7 +112,7 @@ class GPIS:
         """Append scalar observations and extend the Cholesky factor (bordered update).
 
         ``scored=False`` keeps the rows out of the variance calibration (pseudo-observations
-        such as free-space bounds).
+        such as free-space bounds); a (k,) boolean array sets it per row.
         """
         X = np.asarray(X, float).reshape(-1, 3)
         kind = np.asarray(kind, dtype=np.int64).reshape(-1)
@@ -151,7 +151,7 @@ class GPIS:
             self._dKi = self._dKi + np.einsum("ij,ij->j", left, left)
         self._Lib[n:n + k, n:n + k] = L2i
         self._dKi = np.concatenate([self._dKi, np.einsum("ij,ij->j", L2i, L2i)])
-        self.scored = np.concatenate([self.scored, np.full(k, bool(scored))])
+        self.scored = np.concatenate([self.scored, np.broadcast_to(np.asarray(scored, bool), (k,))])
         self.X = np.concatenate([self.X, X])
         self.kind = np.concatenate([self.kind, kind])
         self.y = np.concatenate([self.y, y])
@@ -166,6 +166,34 @@ class GPIS:
             self._dKi = np.einsum("ij,ij->j", self._Lib, self._Lib)
         self._Vb = self._columns(self.Q)
         self._alpha = self._z = self._scale = None
+
+    def relocate(self, X, y, Q, start: int = 0) -> None:
+        """Replace the observations' points ``X`` (n, 3) and values ``y`` (n,), and the tracked
+        points ``Q``, keeping kinds and noise; refactor from row ``start`` on.
+
+        Rows before ``start`` must be unchanged: the leading block of the Cholesky factor
+        and of its inverse are kept, and the rest is added back by bordered updates, so
+        moving the last rows costs O(n^2 k) rather than a refactorisation. Tracked points
+        that moved get new columns; the others keep theirs over the leading rows.
+        """
+        X = np.asarray(X, float).reshape(self.n, 3)
+        y = np.asarray(y, float).reshape(self.n)
+        Q = np.asarray(Q, float).reshape(len(self.Q), 3)
+        start = int(np.clip(start, 0, self.n))
+        kind, noise, scored = self.kind, self.noise, self.scored
+        moved_q = np.any(Q != self.Q, axis=1)
+        # truncate to the leading rows: every kept factor has them as its leading block
+        self.X, self.kind, self.y, self.noise = X[:start], kind[:start], y[:start], noise[:start]
+        self.scored = scored[:start]
+        self.L = self.L[:start, :start]
+        Li = self._Lib[:start, :start]
+        self._dKi = np.einsum("ij,ij->j", Li, Li)
+        self.Q = Q
+        if np.any(moved_q):
+            self._Vb[:start, np.flatnonzero(moved_q)] = self._columns(Q[moved_q])
+        self._alpha = self._z = self._scale = None
+        if start < len(y):
+            self.add(X[start:], kind[start:], y[start:], noise[start:], scored=scored[start:])
 
     def set_prior(self, prior) -> None:
         self.prior = prior

@@ -140,6 +140,11 @@ class ShapeMap:
         self._has_normals = True
         self._free = np.zeros((0, 3))    # swept sample points not yet used
         self._free_c = np.zeros(0)       # their observation values
+        # which update() call (batch) each contact, GPIS row and pool point came from, so
+        # that relocate() can move a batch's data when its pose is revised
+        self._pts_owner = np.zeros(0, dtype=np.int64)
+        self._row_owner = np.zeros(0, dtype=np.int64)
+        self._free_owner = np.zeros(0, dtype=np.int64)
         self.superquadric = None
         if method == "gpis":
             self._gp = GPIS(self.lengthscale, self.signal_std, self._make_prior())
@@ -187,13 +192,15 @@ class ShapeMap:
                 nrm.append(None if r.contact.normals is None else np.asarray(r.contact.normals, float))
             seg.append((s, e, float(r.touch.probe_radius), r.contact is not None))
         P = np.concatenate(pts) if pts else np.zeros((0, 3))
+        batch = len(self.batches)
+        self._pts_owner = np.concatenate([self._pts_owner, np.full(len(P), batch, dtype=np.int64)])
         if any(n is None for n in nrm):
             self._has_normals = False
         N = np.concatenate([n for n in nrm if n is not None]) if (nrm and self._has_normals) else None
         self.results.extend(results)
         self.batches.append(len(results))
         if self.method == "gpis":
-            self._update_gpis(list(zip(pts, nrm if N is not None else [None] * len(pts))), seg)
+            self._update_gpis(list(zip(pts, nrm if N is not None else [None] * len(pts))), seg, batch)
         else:
             self._pts = np.concatenate([self._pts, P])
             if N is not None:
@@ -229,7 +236,7 @@ class ShapeMap:
         c, r = _fit_sphere(self._pts, self._nrm if self._has_normals else None, self.lo, self.hi)
         return sphere_prior(c, r)
 
-    def _update_gpis(self, blocks, seg):
+    def _update_gpis(self, blocks, seg, batch):
         """Add each touch's contacts in turn, each predicted by the map of the touches
         before it (the prequential calibration), then the free space of all of them."""
         gp = self._gp
@@ -252,13 +259,14 @@ class ShapeMap:
                 noise.append(np.full(3 * K, self.sigma_nor**2))
             gp.score_prediction(P, y[0], noise[0])
             gp.add(np.concatenate(X), np.concatenate(kind), np.concatenate(y), np.concatenate(noise))
+            self._row_owner = np.concatenate([self._row_owner, np.full(gp.n - len(self._row_owner), batch)])
             if cheap_prior or j == len(blocks) - 1:
                 gp.set_prior(self._make_prior())
         if self.free_space and seg:
-            self._add_free_points(seg)
+            self._add_free_points(seg, batch)
             self._activate_free()
 
-    def _add_free_points(self, seg):
+    def _add_free_points(self, seg, batch):
         """Sample swept paths inside the bounds (skipping the last stretch before a contact)."""
         h = 0.5 * self.lengthscale
         new, val = [], []
@@ -278,6 +286,7 @@ class ShapeMap:
         if new:
             self._free = np.concatenate([self._free] + new)
             self._free_c = np.concatenate([self._free_c] + val)
+            self._free_owner = np.concatenate([self._free_owner, np.full(sum(map(len, new)), batch, dtype=np.int64)])
             self._gp.track(np.concatenate(new))
 
     _MAX_POOL = 4000
@@ -308,6 +317,7 @@ class ShapeMap:
             idx = idx[chosen]
             val, var = bound_site(mu[idx], sd[idx], self._free_c[idx], floor=(2.0 * self.sigma_pos) ** 2)
             self._gp.add(self._free[idx], np.full(len(idx), -1), val, var, scored=False)
+            self._row_owner = np.concatenate([self._row_owner, self._free_owner[idx]])
             keep = np.ones(len(self._free), bool)
             keep[idx] = False
             self._drop_free(keep)
@@ -320,8 +330,100 @@ class ShapeMap:
             self._drop_free(keep)
 
     def _drop_free(self, keep):
-        self._free, self._free_c = self._free[keep], self._free_c[keep]
+        self._free, self._free_c, self._free_owner = self._free[keep], self._free_c[keep], self._free_owner[keep]
         self._gp.untrack(keep)
+
+    def relocate(self, transforms, *, tol: float = 0.0) -> "ShapeMap":
+        """Move the data of each past update by a rigid transform, and refit.
+
+        A SLAM back end revises the poses at which earlier touches were made; the touches
+        of update call ``b`` (its contacts, their normals, its swept paths and the free-space
+        bounds drawn from them) then move by ``transforms[b]``, which maps their old
+        map-frame coordinates to the new ones. The GPIS keeps the leading block of its
+        factor up to the first moved update and adds the rest back (see
+        :meth:`GPIS.relocate`); the occupancy grid is rebuilt from the moved touches.
+
+        Parameters
+        ----------
+        transforms : list of ((4, 4) float or None)
+            One per update call so far (``len(self.batches)``); None leaves it in place.
+        tol : float
+            Moves that shift no point of the map's box by more than ``tol`` (m) are
+            treated as none (saves refitting for corrections below the sensor's noise).
+
+        Returns
+        -------
+        ShapeMap
+            self.
+        """
+        from .._validate import as_pose
+        from .slam import transform_results
+
+        if isinstance(transforms, np.ndarray) and transforms.ndim == 3:
+            transforms = list(transforms)
+        if not isinstance(transforms, (list, tuple)) or len(transforms) != len(self.batches):
+            raise ValidationError(f"transforms must be a list of {len(self.batches)} poses (one per update), "
+                                  f"got {type(transforms).__name__} of length {len(transforms) if hasattr(transforms, '__len__') else '?'}")
+        if not isinstance(tol, (int, float, np.floating, np.integer)) or isinstance(tol, bool) or not (tol >= 0 and np.isfinite(tol)):
+            raise ValidationError(f"tol must be a finite number >= 0 (m), got {tol!r}")
+        corners = np.array([[x, y, z] for x in (self.lo[0], self.hi[0]) for y in (self.lo[1], self.hi[1])
+                            for z in (self.lo[2], self.hi[2])])
+        moves = {}
+        for b, T in enumerate(transforms):
+            if T is None:
+                continue
+            T = as_pose(T, f"transforms[{b}]")
+            if np.max(np.linalg.norm(corners @ T[:3, :3].T + T[:3, 3] - corners, axis=1)) > tol:
+                moves[b] = T
+        if not moves:
+            return self
+        first = min(moves)
+        # the stored touches (replayed by save/load) and the contacts
+        ends = np.cumsum(self.batches)
+        res = list(self.results)
+        for b, T in moves.items():
+            res[ends[b] - self.batches[b]:ends[b]] = transform_results(res[ends[b] - self.batches[b]:ends[b]], T)
+        self.results = res
+
+        def moved(X, owner, rotate_only=False):
+            X = X.copy()
+            for b, T in moves.items():
+                sel = owner == b
+                if np.any(sel):
+                    X[sel] = X[sel] @ T[:3, :3].T + (0.0 if rotate_only else T[:3, 3])
+            return X
+
+        self._pts = moved(self._pts, self._pts_owner)
+        if self._has_normals and len(self._nrm) == len(self._pts):
+            self._nrm = moved(self._nrm, self._pts_owner, rotate_only=True)
+        self._free = moved(self._free, self._free_owner)
+        if self.method == "gpis":
+            gp = self._gp
+            X = moved(gp.X, self._row_owner)
+            y = gp.y.copy()
+            g = np.flatnonzero(gp.kind == 0)          # gradient rows come as (0, 1, 2) triples
+            if len(g):
+                G = moved(np.stack([y[g], y[g + 1], y[g + 2]], axis=1), self._row_owner[g], rotate_only=True)
+                y[g], y[g + 1], y[g + 2] = G[:, 0], G[:, 1], G[:, 2]
+            rows = np.flatnonzero(self._row_owner >= first)
+            start = int(rows[0]) if len(rows) else gp.n
+            gp.relocate(X, y, self._free, start=start)
+            gp.set_prior(self._make_prior())
+        else:
+            self._grid = OccupancyGrid(self.lo, self.hi, self.resolution)
+            i = 0
+            for b in self.batches:
+                batch = self.results[i:i + b]
+                i += b
+                P = [r.contact.points for r in batch if r.contact is not None]
+                N = [r.contact.normals for r in batch if r.contact is not None]
+                if P:
+                    self._grid.add_contacts(np.concatenate(P), np.concatenate(N) if self._has_normals else None)
+                if self.free_space and batch:
+                    S, E = zip(*(r.swept_segment for r in batch))
+                    self._grid.add_free(np.array(S), np.array(E), np.array([r.touch.probe_radius for r in batch]),
+                                        np.array([r.contact is not None for r in batch]))
+        return self
 
     def refit(self) -> "ShapeMap":
         """Refactor the GPIS from its stored observations (a check on the incremental update)."""

@@ -91,6 +91,12 @@ class TactileSLAM:
     planar : bool
         The object moves on a table: x, y and yaw only.
     n_particles : int
+    smooth_every : int
+        Every this many updates, revise the whole trajectory at once
+        (:func:`touchloc.mapping.smoother.smooth_trajectory`: pairs of nearby contacts
+        from different steps must lie on one surface, plus the motion model) and move
+        every past touch in the map to its revised pose (:meth:`ShapeMap.relocate`).
+        0 turns it off (a pure filter). Needs contacts with normals.
     learn_odometry_scale : bool
         Learn, online, a scale on the odometry's turn angle (a hand that reports its
         turns a few per cent too large or too small): each step where the map corrects the
@@ -98,20 +104,39 @@ class TactileSLAM:
         current value is ``.odometry_scale`` (1 until there is a map of 30 contacts).
         Off by default: with an unbiased odometry it only adds noise of about a per cent.
     initial_pose : (4, 4) float, optional
+        The object's pose when the first update's touches were made: the map's frame.
+        (If the object moved before them, pass that motion as the first update's
+        odometry.)
     rng : None, int or Generator
     **map_kwargs
         Passed to :class:`ShapeMap` (``method``, ``sigma_pos``, ``sigma_nor``, ...).
+
+    Attributes
+    ----------
+    pose : (4, 4) float
+        Current estimate.
+    trajectory : list of (4, 4) float
+        ``initial_pose``, then one estimate per update (revised by the smoother).
+    map : ShapeMap
+        The shape, in the object frame.
+    info : dict
+        ``dropped`` (contacts outside the box), ``ess`` per update, ``smoothing`` (one
+        record per smoother run: pairs, iterations, cost before/after, accepted, the
+        largest pose change in m).
     """
 
     def __init__(self, bounds, *, motion=(0.002, np.deg2rad(2.0)), odometry_noise=(0.001, np.deg2rad(1.0)),
-                 planar: bool = False, n_particles: int = 300, learn_odometry_scale: bool = False, initial_pose=None,
-                 rng=None, **map_kwargs):
+                 planar: bool = False, n_particles: int = 300, smooth_every: int = 10,
+                 learn_odometry_scale: bool = False, initial_pose=None, rng=None, **map_kwargs):
         self.bounds = as_bounds(bounds)
         self.motion = _pair(motion, "motion")
         self.odometry_noise = _pair(odometry_noise, "odometry_noise")
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or not 10 <= n_particles <= 100_000:
             raise ValidationError(f"n_particles must be an integer in [10, 100000], got {n_particles!r}")
         self.planar = as_bool(planar, "planar")
+        if isinstance(smooth_every, bool) or not isinstance(smooth_every, (int, np.integer)) or not 0 <= smooth_every <= 100_000:
+            raise ValidationError(f"smooth_every must be an integer >= 0 (0: off), got {smooth_every!r}")
+        self.smooth_every = int(smooth_every)
         self.learn_odometry_scale = as_bool(learn_odometry_scale, "learn_odometry_scale")
         self.odometry_scale = 1.0
         self.rng = as_rng(rng)
@@ -120,7 +145,9 @@ class TactileSLAM:
         self.particles = np.repeat(T0[None], int(n_particles), axis=0)
         self.log_w = np.full(int(n_particles), -np.log(n_particles))
         self.trajectory = [T0.copy()]
-        self.info = {"dropped": 0, "ess": []}
+        self.info = {"dropped": 0, "ess": [], "smoothing": []}
+        # per update: its contacts (world frame), its motion model, its map batch (or None)
+        self._steps: list = []
 
     @property
     def pose(self) -> np.ndarray:
@@ -154,6 +181,7 @@ class TactileSLAM:
 
         results = _check_results(results)
         D = None
+        first = not self._steps
         if odometry is not None:
             D = _as_pose(odometry, "odometry")
             if self.learn_odometry_scale:
@@ -162,10 +190,14 @@ class TactileSLAM:
             P[:, :3, :3] = D[:3, :3] @ P[:, :3, :3]
             P[:, :3, 3] = P[:, :3, 3] @ D[:3, :3].T + D[:3, 3]
             sig = self.odometry_noise
+        elif first:
+            # the first touches meet the object at initial_pose: it defines the map's frame
+            P, sig = self.particles, None
         else:
             P = self.particles
             sig = self.motion
-        P = _perturb(P, sig[0], sig[1], self.planar, self.rng)
+        if sig is not None:
+            P = _perturb(P, sig[0], sig[1], self.planar, self.rng)
         if self.map.n_contacts > 0:
             ll = self._log_likelihood(P, results)
             lw = self.log_w + ll
@@ -194,7 +226,54 @@ class TactileSLAM:
             keep.append(r)
         if keep:
             self.map.update(keep)
-        return T.copy()
+        hits = [r.contact for r in results if r.contact is not None]
+        c = Contacts.concatenate(hits) if hits else None
+        self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
+                                batch=len(self.map.batches) - 1 if keep else None))
+        if self.smooth_every and len(self._steps) % self.smooth_every == 0:
+            self.smooth()
+        return self.trajectory[-1].copy()
+
+    def smooth(self) -> dict:
+        """Revise every pose so far at once and move the map's touches with them.
+
+        Runs by itself every ``smooth_every`` updates; call it at the end of a run for a
+        final pass. Returns the smoother's record (also appended to
+        ``info["smoothing"]``); nothing changes when the contacts carry no normals, when
+        there are fewer than two steps, or when the revision would not lower the cost.
+        """
+        from .smoother import smooth_trajectory
+
+        steps = [(i, st["contacts"]) for i, st in enumerate(self._steps) if st["contacts"] is not None]
+        rec = dict(pairs=0, iterations=0, cost=(0.0, 0.0), accepted=False, max_change=0.0)
+        if len(self._steps) < 2 or not steps or any(c.normals is None for _, c in steps) or self.map.method != "gpis":
+            self.info["smoothing"].append(rec)
+            return rec
+        old = np.array(self.trajectory[1:])
+        new, info = smooth_trajectory(
+            old, self.trajectory[0], np.concatenate([c.points for _, c in steps]),
+            np.concatenate([c.normals for _, c in steps]), np.concatenate([np.full(len(c), i) for i, c in steps]),
+            [st["motion"] for st in self._steps], planar=self.planar, sigma_pos=self.map.sigma_pos,
+            sigma_nor=self.map.sigma_nor, radius=self.map.lengthscale)
+        rec.update(info)
+        if info["accepted"]:
+            ext = 0.5 * float(np.linalg.norm(self.map.hi - self.map.lo))
+            change = [float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+                      + ext * float(np.linalg.norm(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).as_rotvec()))
+                      for a, b in zip(new, old)]
+            rec["max_change"] = max(change)
+            # the map moves each step's touches from its old pose to its new one (object frame)
+            moves = [None] * len(self.map.batches)
+            for st, a, b in zip(self._steps, new, old):
+                if st["batch"] is not None:
+                    moves[st["batch"]] = np.linalg.inv(a) @ b
+            self.map.relocate(moves, tol=0.1 * self.map.sigma_pos)
+            # the particles follow the correction of the current pose
+            C = new[-1] @ np.linalg.inv(old[-1])
+            self.particles = np.einsum("ij,njk->nik", C, self.particles)
+            self.trajectory = [self.trajectory[0]] + [T.copy() for T in new]
+        self.info["smoothing"].append(rec)
+        return rec
 
     # tuning of the odometry-scale estimate (see _learn_scale)
     _SCALE_GAIN = 0.05
@@ -222,8 +301,19 @@ class TactileSLAM:
         self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
 
     def _log_likelihood(self, P, results):
-        """(N,) log-likelihood of world-frame touches for each pose particle, against the map."""
+        """(N,) log-likelihood of world-frame touches for each pose particle, against the map.
+
+        Less the same terms scored against the map's prior mean alone (a sphere fitted to
+        the contacts, ``signal_std`` about it): the prior is a placeholder shape, not
+        evidence about where the object is, so a touch where the map knows nothing more
+        than the prior says nothing about the pose, and one on mapped surface says as much
+        as the map adds. (Scored against the prior as well, touches on parts not yet
+        mapped pulled the pose towards fitting the sphere: on the milk carton the second
+        step's estimate moved 7 mm the wrong way.)
+        """
         smap = self.map
+        gpis = smap.method == "gpis"
+        prior_var = smap.signal_std**2
         N = len(P)
         ll = np.zeros(N)
         Rt = np.transpose(P[:, :3, :3], (0, 2, 1))
@@ -238,7 +328,10 @@ class TactileSLAM:
             sd = smap.surface_std(xm)
             var = np.tile(sd**2, N) + smap.sigma_pos**2
             ll += (-0.5 * mu**2 / var).reshape(N, -1).sum(axis=1)
-            if c.normals is not None and smap.method == "gpis":
+            if gpis:
+                pm, pg = smap._gp.prior(x)
+                ll += (0.5 * pm**2 / (prior_var + smap.sigma_pos**2)).reshape(N, -1).sum(axis=1)
+            if c.normals is not None and gpis:
                 h = 0.5e-3
                 g = np.stack([(smap.signed_distance(x + h * e) - smap.signed_distance(x - h * e)) / (2 * h)
                               for e in np.eye(3)], axis=1)
@@ -248,6 +341,8 @@ class TactileSLAM:
                 # kernel the gradient's standard deviation is about the value's over the length scale
                 var_n = np.tile((sd / smap.lengthscale) ** 2, N) + smap.sigma_nor**2
                 ll += (-0.5 * np.sum((g - n_loc) ** 2, axis=1) / var_n).reshape(N, -1).sum(axis=1)
+                pvar_n = prior_var / smap.lengthscale**2 + smap.sigma_nor**2
+                ll += (0.5 * np.sum((pg - n_loc) ** 2, axis=1) / pvar_n).reshape(N, -1).sum(axis=1)
         # free space: swept points should lie outside
         pts = []
         for r in results:
@@ -263,13 +358,16 @@ class TactileSLAM:
             y = np.einsum("nij,nkj->nki", Rt, Y[None, :, :] - P[:, None, :3, 3]).reshape(-1, 3)
             inb = np.all((y >= smap.lo) & (y <= smap.hi), axis=1)
             mu = np.full(len(y), 1.0)
+            pm = np.full(len(y), 1.0)
             if np.any(inb):
                 mu[inb] = smap.signed_distance(y[inb])
+                pm[inb] = smap._gp.prior(y[inb])[0]
             # where the map is unsure, a swept point inside its mean is weak evidence against the pose
             T = self._mean_pose()
             sd = smap.surface_std(np.clip((Y - T[:3, 3]) @ T[:3, :3], smap.lo, smap.hi))
             scale = np.sqrt(np.tile(sd**2, N) + (2 * smap.sigma_pos + 1e-4) ** 2)
             ll += log_ndtr(mu / scale).reshape(N, -1).sum(axis=1)
+            ll -= log_ndtr(pm / np.sqrt(prior_var + (2 * smap.sigma_pos + 1e-4) ** 2)).reshape(N, -1).sum(axis=1)
         return ll
 
 
@@ -301,12 +399,17 @@ def _pair(v, name):
 class MovingWorld:
     """A simulated object that moves while it is touched.
 
-    Before every action the object is pushed: a random motion (``push`` = translation
-    (m) and rotation (rad) standard deviations, about the object's own origin), and in
-    ``inhand`` mode also turned by ``step`` rad about ``axis`` (world frame, through the
-    object's origin), as a hand rotating it between its fingers. ``odometry()`` returns
-    the hand's estimate of the last motion: the commanded turn scaled by ``1 + bias``
-    (nothing is known of random pushes).
+    Every action pushes the object: after its touches are measured, the object moves by
+    a random motion (``push`` = translation (m) and rotation (rad) standard deviations,
+    about the object's own origin), which the next action finds. In ``inhand`` mode the
+    hand also turns it by ``step`` rad about ``axis`` (world frame, through the object's
+    origin) before each action, as a hand rotating it between its fingers. The first
+    action therefore meets the object at ``initial_pose`` (or turned once, in hand).
+    ``odometry()`` returns the hand's estimate of the motion since the last action's
+    touches: the commanded turn scaled by ``1 + bias`` (nothing is known of pushes).
+
+    ``trajectory`` holds ``initial_pose`` and then the pose at which each action's
+    touches were made.
 
     Parameters
     ----------
@@ -360,7 +463,6 @@ class MovingWorld:
         from ..planners.simulate import execute
 
         T = self.true_pose
-        before = T.copy()
         if self.inhand:
             R = Rotation.from_rotvec(self.step * self.axis).as_matrix()
             T = T.copy()
@@ -369,8 +471,8 @@ class MovingWorld:
             self._odo = np.eye(4)
             self._odo[:3, :3] = Ro
             self._odo[:3, 3] = T[:3, 3] - Ro @ T[:3, 3]   # turn about the object's origin
-        T = _perturb(T[None], self.push[0], self.push[1], self.planar, self.rng)[0]
-        self.true_pose = T
         self.trajectory.append(T.copy())
-        del before
-        return execute(self.obj, T, action, noise_pos=self.noise_pos, noise_nor=self.noise_nor, rng=self.rng)
+        out = execute(self.obj, T, action, noise_pos=self.noise_pos, noise_nor=self.noise_nor, rng=self.rng)
+        # the touch disturbs the object: the next action finds it moved
+        self.true_pose = _perturb(T[None], self.push[0], self.push[1], self.planar, self.rng)[0]
+        return out
