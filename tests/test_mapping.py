@@ -55,6 +55,76 @@ def test_incremental_update_equals_refit(sphere):
     assert np.allclose(m1, m2, atol=1e-9) and np.allclose(s1, s2, atol=1e-9)
 
 
+def _batches_and_map(obj, free_space=True, k=4):
+    res = _touches(obj, 3 * k, 0)
+    batches = [res[i:i + 3] for i in range(0, 3 * k, 3)]
+    m = ShapeMap(_bounds(obj, 0.03), free_space=free_space)
+    for b in batches:
+        m.update(b)
+    return batches, m
+
+
+def _move(yaw, t):
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, yaw]).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_relocating_the_last_touches_equals_a_map_built_where_they_now_are(sphere):
+    from touchloc.mapping import transform_results
+
+    T = _move(0.05, (0.003, -0.002, 0.001))
+    batches, m = _batches_and_map(sphere, free_space=False)
+    m.relocate([None, None, None, T])
+    fresh = ShapeMap(_bounds(sphere, 0.03), free_space=False)
+    for b in batches[:3] + [transform_results(batches[3], T)]:
+        fresh.update(b)
+    q = sphere.sample_surface(300, rng=1)[0]
+    assert np.allclose(m.signed_distance(q), fresh.signed_distance(q), atol=1e-10)
+    assert np.allclose(m.surface_std(q), fresh.surface_std(q), atol=1e-10)
+    assert np.allclose(m.contacts.points, fresh.contacts.points)
+
+
+def test_relocation_keeps_the_factors_of_a_refit_and_moves_free_space_with_its_touches(sphere):
+    batches, m = _batches_and_map(sphere)
+    n_rows = m._gp.n
+    m.relocate([None, _move(-0.04, (0.0, 0.002, 0.0)), None, _move(0.03, (-0.001, 0.0, 0.002))])
+    gp = m._gp
+    L, dKi, V = gp.L.copy(), gp._dKi.copy(), gp._V.copy()
+    gp.refactor()
+    assert gp.n == n_rows
+    assert np.allclose(L, gp.L, atol=1e-10) and np.allclose(dKi, gp._dKi, rtol=1e-8)
+    assert np.allclose(V, gp._V, atol=1e-10)
+    # moving every touch by one rigid motion moves the whole map with it
+    batches, m = _batches_and_map(sphere)
+    q = sphere.sample_surface(200, rng=2)[0]
+    before = m.signed_distance(q)
+    T = _move(0.1, (0.004, 0.0, -0.003))
+    m.relocate([T] * 4)
+    assert np.allclose(m.signed_distance(q @ T[:3, :3].T + T[:3, 3]), before, atol=1e-9)
+    # moves below the tolerance are ignored
+    before = m.signed_distance(q)
+    m.relocate([_move(1e-7, (1e-7, 0, 0))] * 4, tol=1e-5)
+    assert np.array_equal(m.signed_distance(q), before)
+
+
+def test_relocate_rejects_bad_input(sphere):
+    _, m = _batches_and_map(sphere, k=2)
+    with pytest.raises(ValidationError):
+        m.relocate([np.eye(4)])                      # one per update
+    with pytest.raises(ValidationError):
+        m.relocate([np.eye(4), np.diag([1.0, 1.0, -1.0, 1.0])])   # a reflection
+    with pytest.raises(ValidationError):
+        m.relocate([np.eye(4), np.full((4, 4), np.nan)])
+    with pytest.raises(ValidationError):
+        m.relocate("nope")
+    with pytest.raises(ValidationError):
+        m.relocate([None, None], tol=-1.0)
+
+
 def test_tracked_free_space_mean_matches_the_direct_mean(sphere):
     # the free-space pool's mean is kept by extending L^-1 K(X, Q) block by block
     res = _touches(sphere, 30, 2)

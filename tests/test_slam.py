@@ -102,3 +102,104 @@ def test_slam_bad_input(milk):
     with pytest.raises(ValidationError):
         explore(MovingWorld(milk), _box(milk, 0.05), 3, slam=ShapeMap(_box(milk, 0.02)))
     assert len(hand_pool(_box(milk, 0.02), 4, fingers=3, rng=0)) == 4
+
+
+def _walk(n, sigma_t, sigma_r, rng):
+    from touchloc.models import GaussianDynamics
+
+    dyn = GaussianDynamics(sigma_t, sigma_r, planar=True)
+    T = [np.eye(4)]
+    for _ in range(n):
+        T.append(dyn.sample(T[-1][None], rng=rng)[0])
+    return np.array(T)
+
+
+def test_smoother_pulls_a_drifted_trajectory_back_onto_one_surface(milk):
+    """Contacts made along a pushed trajectory, estimates that drifted away from it: the
+    smoother must bring the poses back (the first pose fixes the frame)."""
+    from touchloc.mapping.smoother import smooth_trajectory
+
+    rng = np.random.default_rng(0)
+    true = _walk(40, 0.002, np.deg2rad(2.0), rng)          # true[0] is the anchor
+    pts, nrm, own = [], [], []
+    for s in range(40):
+        p, n, _ = milk.sample_surface(4, rng=rng)
+        T = true[s + 1]
+        pts.append(p @ T[:3, :3].T + T[:3, 3] + rng.normal(scale=0.001, size=p.shape))
+        nn = n @ T[:3, :3].T + rng.normal(scale=0.05, size=n.shape)
+        nrm.append(nn / np.linalg.norm(nn, axis=1, keepdims=True))
+        own.append(np.full(4, s))
+    # the estimate drifts: its own random walk of errors on top of the truth
+    err = _walk(40, 0.0015, np.deg2rad(1.5), rng)
+    est = np.array([true[s + 1] @ err[s + 1] for s in range(40)])
+    motions = [None] + [(np.eye(4), (0.002, np.deg2rad(2.0)))] * 39
+    est[0] = true[1]
+
+    def drift(P):
+        return np.median([add_s(milk, a, b) for a, b in zip(P, true[1:])])
+
+    new, info = smooth_trajectory(est, true[0], np.concatenate(pts), np.concatenate(nrm), np.concatenate(own),
+                                  motions, planar=True, sigma_pos=0.001, sigma_nor=0.05, radius=0.03)
+    assert info["accepted"] and info["pairs"] > 100
+    assert info["cost"][1] < info["cost"][0]
+    assert drift(new) < 0.5 * drift(est)
+    assert np.array_equal(new[0], est[0])                  # the first step is held
+    # nothing to gain from the truth: it stays within the noise of the contacts
+    back, _ = smooth_trajectory(true[1:], true[0], np.concatenate(pts), np.concatenate(nrm), np.concatenate(own),
+                                motions, planar=True, sigma_pos=0.001, sigma_nor=0.05, radius=0.03)
+    assert drift(back) < 0.0015
+
+
+def test_a_touch_where_the_map_is_only_its_prior_says_nothing_about_the_pose(milk):
+    from touchloc.planners import GuardedTouch, execute
+
+    slam = TactileSLAM(_box(milk, 0.03), planar=True, sigma_pos=0.001, sigma_nor=0.087, rng=0)
+    # map the bottom of one side of the carton (-x), then score a touch there and one at the
+    # top of the far side (+x), more than four length scales away
+    first = [execute(milk, np.eye(4), GuardedTouch((-0.1, y, z), (1, 0, 0), 0.2), rng=0)[0]
+             for y in (-0.01, 0.01) for z in (-0.07, -0.06, -0.05)]
+    slam.update(first)
+    far = execute(milk, np.eye(4), GuardedTouch((0.1, 0.0, 0.06), (-1, 0, 0), 0.2), rng=1)
+    near = execute(milk, np.eye(4), GuardedTouch((-0.1, 0.0, -0.055), (1, 0, 0), 0.2), rng=1)
+    P = np.repeat(np.eye(4)[None], 21, axis=0)
+    P[:, 0, 3] = np.linspace(-0.005, 0.005, 21)
+    ll_far, ll_near = slam._log_likelihood(P, far), slam._log_likelihood(P, near)
+    # on the mapped side a 5 mm shift along the normal costs several nats; on the far side,
+    # where the map holds only its prior sphere, nothing (scored against the prior as
+    # well, it cost 1.9 nats there)
+    assert np.ptp(ll_near) > 5.0
+    assert np.ptp(ll_far) < 0.1
+
+
+def test_first_touches_define_the_frame_and_the_world_is_pushed_after_each_action(milk):
+    T0 = np.eye(4)
+    T0[:3, 3] = (0.01, -0.02, 0.0)
+    world = MovingWorld(milk, T0, push=(0.002, np.deg2rad(2.0)), planar=True, rng=0)
+    slam = TactileSLAM(_box(milk, 0.03), initial_pose=T0, planar=True, rng=0)
+    pool = hand_pool(_box(milk, 0.06), 3, fingers=3, rng=0)
+    slam.update(world.execute(pool[0]))
+    assert np.array_equal(world.trajectory[1], T0)          # the first action met the object unmoved
+    assert np.allclose(slam.pose, T0, atol=1e-12)            # and the map's frame is where it was
+    assert not np.allclose(world.true_pose, T0)              # ... which that action then pushed
+    world.execute(pool[1])
+    assert not np.allclose(world.trajectory[2], T0)
+
+
+def test_smoothing_keeps_a_pushed_run_within_millimetres(milk):
+    """100 three-finger actions on a carton pushed 2 mm / 2 deg per action: the goal's setting."""
+    from touchloc.mapping import fscore
+
+    out = {}
+    for every in (10, 0):
+        world = MovingWorld(milk, rng=0, push=(0.002, np.deg2rad(2.0)), planar=True)
+        slam = TactileSLAM(_box(milk, 0.03), planar=True, smooth_every=every, sigma_pos=0.001, sigma_nor=0.087,
+                           rng=0)
+        run = explore(world, _box(milk, 0.06), 100, slam=slam, fingers=3, rng=0)
+        drift = np.median([add_s(milk, a, b) for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
+        out[every] = (fscore(run.map.to_mesh(), milk, 0.005, n=3000), drift)
+        if every:
+            runs = slam.info["smoothing"]
+            assert len(runs) == 10 and sum(r["accepted"] for r in runs) >= 8
+    f, drift = out[10]
+    assert f >= 0.9 and drift < 0.003
+    assert drift < out[0][1]
