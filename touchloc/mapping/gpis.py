@@ -334,6 +334,46 @@ class GPIS:
             out[i:i + len(q)] = self.s2 * (KW[:, 0] + np.einsum("ij,ij->i", q, KW[:, 1:]))
         return m + out
 
+    def mean_grad(self, Q):
+        """(M,) posterior mean of f and (M, 3) its gradient at query points, in one pass.
+
+        The mean is m(q) + s^2 sum_j k_j(q) (w0_j + q . wb_j) with k_j = exp(-|q - x_j|^2 / 2 l^2)
+        (see :meth:`mean`); its gradient, dk_j/dq = -k_j (q - x_j) / l^2, needs the same
+        kernel matrix times 16 columns instead of 4, so the gradient costs about what the
+        mean does (three central differences would cost six more means).
+        """
+        Q = np.asarray(Q, float).reshape(-1, 3)
+        m, gm = self.prior(Q)
+        if self.n == 0 or len(Q) == 0:
+            return m, gm
+        a = self.alpha
+        X, kind, l2 = self.X, self.kind, self.l * self.l
+        wb = np.stack([np.where(kind == b, a, 0.0) / l2 for b in range(3)], axis=1)     # (n, 3)
+        w0 = np.where(kind < 0, a, 0.0) - np.einsum("jb,jb->j", wb, X)
+        W = np.concatenate([w0[:, None], wb, X * w0[:, None], (X[:, :, None] * wb[:, None, :]).reshape(-1, 9)], 1)
+        Xd = X / self.l
+        xx = np.sum(Xd * Xd, 1)
+        mu = np.empty(len(Q))
+        grad = np.empty((len(Q), 3))
+        for i in range(0, len(Q), _CHUNK):
+            q = Q[i:i + _CHUNK]
+            qd = q / self.l
+            K = qd @ Xd.T
+            K *= -2.0
+            K += xx[None, :]
+            K += np.sum(qd * qd, 1)[:, None]
+            np.maximum(K, 0.0, out=K)
+            K *= -0.5
+            np.exp(K, out=K)
+            A = K @ W
+            Ab = A[:, 1:4]
+            s1 = A[:, 0] + np.einsum("ib,ib->i", q, Ab)                   # sum_j k_j (w0_j + q . wb_j)
+            C = A[:, 7:].reshape(-1, 3, 3)                                # sum_j k_j x_j wb_j^T
+            mu[i:i + len(q)] = self.s2 * s1
+            grad[i:i + len(q)] = self.s2 * (-(q * s1[:, None]) + A[:, 4:7] + np.einsum("iab,ib->ia", C, q)) / l2 \
+                + self.s2 * Ab
+        return m + mu, gm + grad
+
     def mean_std(self, Q, *, calibrated: bool = True):
         """(M,) posterior mean and standard deviation of f at query points.
 

@@ -96,7 +96,12 @@ class TactileSLAM:
         (:func:`touchloc.mapping.smoother.smooth_trajectory`: pairs of nearby contacts
         from different steps must lie on one surface, plus the motion model) and move
         every past touch in the map to its revised pose (:meth:`ShapeMap.relocate`).
-        0 turns it off (a pure filter). Needs contacts with normals.
+        The interval then grows with the trajectory (a quarter of its length), so that
+        the smoother's cost stays a small share of the run. 0 turns it off (a pure
+        filter). Needs contacts with normals.
+    smooth_window : int
+        The smoother revises the last this many poses; older ones stay as they are and
+        anchor the rest (their touches still enter as partners). 0: all of them.
     learn_odometry_scale : bool
         Learn, online, a scale on the odometry's turn angle (a hand that reports its
         turns a few per cent too large or too small): each step where the map corrects the
@@ -122,11 +127,11 @@ class TactileSLAM:
     info : dict
         ``dropped`` (contacts outside the box), ``ess`` per update, ``smoothing`` (one
         record per smoother run: pairs, iterations, cost before/after, accepted, the
-        largest pose change in m).
+        largest shift of a contact in the map, m).
     """
 
     def __init__(self, bounds, *, motion=(0.002, np.deg2rad(2.0)), odometry_noise=(0.001, np.deg2rad(1.0)),
-                 planar: bool = False, n_particles: int = 300, smooth_every: int = 10,
+                 planar: bool = False, n_particles: int = 300, smooth_every: int = 10, smooth_window: int = 60,
                  learn_odometry_scale: bool = False, initial_pose=None, rng=None, **map_kwargs):
         self.bounds = as_bounds(bounds)
         self.motion = _pair(motion, "motion")
@@ -137,6 +142,9 @@ class TactileSLAM:
         if isinstance(smooth_every, bool) or not isinstance(smooth_every, (int, np.integer)) or not 0 <= smooth_every <= 100_000:
             raise ValidationError(f"smooth_every must be an integer >= 0 (0: off), got {smooth_every!r}")
         self.smooth_every = int(smooth_every)
+        if isinstance(smooth_window, bool) or not isinstance(smooth_window, (int, np.integer)) or not 0 <= smooth_window <= 10**6:
+            raise ValidationError(f"smooth_window must be an integer >= 0 (0: the whole trajectory), got {smooth_window!r}")
+        self.smooth_window = int(smooth_window)
         self.learn_odometry_scale = as_bool(learn_odometry_scale, "learn_odometry_scale")
         self.odometry_scale = 1.0
         self.rng = as_rng(rng)
@@ -148,6 +156,7 @@ class TactileSLAM:
         self.info = {"dropped": 0, "ess": [], "smoothing": []}
         # per update: its contacts (world frame), its motion model, its map batch (or None)
         self._steps: list = []
+        self._next_smooth = self.smooth_every
 
     @property
     def pose(self) -> np.ndarray:
@@ -230,15 +239,20 @@ class TactileSLAM:
         c = Contacts.concatenate(hits) if hits else None
         self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
                                 batch=len(self.map.batches) - 1 if keep else None))
-        if self.smooth_every and len(self._steps) % self.smooth_every == 0:
+        if self.smooth_every and len(self._steps) >= self._next_smooth:
             self.smooth()
+            k = len(self._steps)
+            # the interval grows with the trajectory (a quarter of its length), so the cost
+            # of smoothing, which grows with the map, stays a small share of every update
+            self._next_smooth = k + max(self.smooth_every, k // 4)
         return self.trajectory[-1].copy()
 
     def smooth(self) -> dict:
-        """Revise every pose so far at once and move the map's touches with them.
+        """Revise the poses at once (the last ``smooth_window`` of them) and move the map's
+        touches with them.
 
-        Runs by itself every ``smooth_every`` updates; call it at the end of a run for a
-        final pass. Returns the smoother's record (also appended to
+        Runs by itself on the schedule set by ``smooth_every``; call it at the end of a
+        run for a final pass. Returns the smoother's record (also appended to
         ``info["smoothing"]``); nothing changes when the contacts carry no normals, when
         there are fewer than two steps, or when the revision would not lower the cost.
         """
@@ -254,20 +268,24 @@ class TactileSLAM:
             old, self.trajectory[0], np.concatenate([c.points for _, c in steps]),
             np.concatenate([c.normals for _, c in steps]), np.concatenate([np.full(len(c), i) for i, c in steps]),
             [st["motion"] for st in self._steps], planar=self.planar, sigma_pos=self.map.sigma_pos,
-            sigma_nor=self.map.sigma_nor, radius=self.map.lengthscale)
+            sigma_nor=self.map.sigma_nor, radius=self.map.lengthscale,
+            hold=max(0, len(self._steps) - self.smooth_window) if self.smooth_window else 0)
         rec.update(info)
         if info["accepted"]:
-            ext = 0.5 * float(np.linalg.norm(self.map.hi - self.map.lo))
-            change = [float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
-                      + ext * float(np.linalg.norm(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).as_rotvec()))
-                      for a, b in zip(new, old)]
-            rec["max_change"] = max(change)
-            # the map moves each step's touches from its old pose to its new one (object frame)
+            # the map moves each step's touches from its old pose to its new one (object frame);
+            # steps whose contacts move by less than a tenth of the sensor's noise stay
             moves = [None] * len(self.map.batches)
             for st, a, b in zip(self._steps, new, old):
+                A = np.linalg.inv(a) @ b
+                if st["contacts"] is not None:
+                    x = (st["contacts"].points - b[:3, 3]) @ b[:3, :3]
+                    shift = float(np.max(np.linalg.norm(x @ A[:3, :3].T + A[:3, 3] - x, axis=1)))
+                    rec["max_change"] = max(rec["max_change"], shift)
+                    if shift < 0.1 * self.map.sigma_pos:
+                        continue
                 if st["batch"] is not None:
-                    moves[st["batch"]] = np.linalg.inv(a) @ b
-            self.map.relocate(moves, tol=0.1 * self.map.sigma_pos)
+                    moves[st["batch"]] = A
+            self.map.relocate(moves)
             # the particles follow the correction of the current pose
             C = new[-1] @ np.linalg.inv(old[-1])
             self.particles = np.einsum("ij,njk->nik", C, self.particles)
@@ -321,7 +339,10 @@ class TactileSLAM:
         if hits:
             c = Contacts.concatenate(hits)
             x = np.einsum("nij,nkj->nki", Rt, c.points[None, :, :] - P[:, None, :3, 3]).reshape(-1, 3)
-            mu = smap.signed_distance(x)
+            if gpis:
+                mu, g = smap._gp.mean_grad(x)
+            else:
+                mu = smap.signed_distance(x)
             # the map's own uncertainty, evaluated once at the mean pose's points
             T = self._mean_pose()
             xm = (c.points - T[:3, 3]) @ T[:3, :3]
@@ -332,9 +353,6 @@ class TactileSLAM:
                 pm, pg = smap._gp.prior(x)
                 ll += (0.5 * pm**2 / (prior_var + smap.sigma_pos**2)).reshape(N, -1).sum(axis=1)
             if c.normals is not None and gpis:
-                h = 0.5e-3
-                g = np.stack([(smap.signed_distance(x + h * e) - smap.signed_distance(x - h * e)) / (2 * h)
-                              for e in np.eye(3)], axis=1)
                 g /= np.maximum(np.linalg.norm(g, axis=1), 1e-9)[:, None]
                 n_loc = np.einsum("nij,nkj->nki", Rt, np.broadcast_to(c.normals, (N,) + c.normals.shape)).reshape(-1, 3)
                 # the map's normal is as uncertain as its gradient: for the squared-exponential

@@ -49,7 +49,7 @@ def _skew(v):
 
 def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar: bool, sigma_pos: float,
                       sigma_nor: float, radius: float, neighbours: int = 10, loss_scale: float = 3.0,
-                      iterations: int = 6):
+                      iterations: int = 6, hold: int = 0):
     """Revise a trajectory of object poses from its contacts and motion model.
 
     Internal to :class:`touchloc.mapping.TactileSLAM` (inputs are trusted).
@@ -76,6 +76,9 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     loss_scale : float
         Cauchy scale, in standard deviations of a pair's residual.
     iterations : int
+    hold : int
+        The first ``hold`` steps keep their poses (a fixed-lag smoother: old poses, long
+        settled, anchor the rest and are not solved for again).
 
     Returns
     -------
@@ -89,6 +92,7 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     dof = np.array([0, 1, 5]) if planar else np.arange(6)
     d = len(dof)
     free = np.array([m is not None for m in motions])
+    free[:hold] = False
     col = np.full(S, -1)
     col[free] = np.arange(int(free.sum()))
     n_par = int(free.sum()) * d
