@@ -111,6 +111,21 @@ def test_relocation_keeps_the_factors_of_a_refit_and_moves_free_space_with_its_t
     assert np.array_equal(m.signed_distance(q), before)
 
 
+def test_mean_and_gradient_in_one_pass_match_the_mean_and_its_differences(sphere):
+    _, m = _batches_and_map(sphere)
+    gp = m._gp
+    lo, hi = _bounds(sphere, 0.03)
+    Q = lo + np.random.default_rng(3).random((400, 3)) * (hi - lo)
+    mu, g = gp.mean_grad(Q)
+    h = 1e-6
+    fd = np.stack([(gp.mean(Q + h * e) - gp.mean(Q - h * e)) / (2 * h) for e in np.eye(3)], axis=1)
+    assert np.allclose(mu, gp.mean(Q), atol=1e-12)
+    assert np.allclose(g, fd, atol=1e-6)
+    # near the touched surface the gradient is about the outward unit normal
+    p, n, _ = sphere.sample_surface(50, rng=4)
+    assert np.median(np.einsum("ij,ij->i", gp.mean_grad(p)[1], n)) > 0.8
+
+
 def test_relocate_rejects_bad_input(sphere):
     _, m = _batches_and_map(sphere, k=2)
     with pytest.raises(ValidationError):
