@@ -321,3 +321,24 @@ def test_log_keeps_finished_touches_when_a_later_one_fails(can_rig, tmp_path):
         ex.execute(ex.finger_touch(2, math.pi / 2, (-0.03, 0.112), (0.04, 0.112)))
     recs = read_session(tmp_path / "session.jsonl")   # read while the log is still open
     assert len(recs) == 1 and recs[0].result.hit and recs[0].finger == 0
+
+
+def test_touch_pool_holds_only_touches_the_hand_can_make(can_rig):
+    r, ex = can_rig
+    pool = ex.touch_pool(20, rng=0)
+    assert len(pool) == 20 and all(isinstance(t, GuardedTouch) for t in pool)
+    for t in pool:
+        ex.plan(t)                         # raises if no finger can make it
+    fingers = {t.name.split()[1] for t in pool}
+    assert fingers == {"0", "1", "2"}
+    assert [t.name for t in ex.touch_pool(5, rng=3)] == [t.name for t in ex.touch_pool(5, rng=3)]
+    for bad in (dict(n=0), dict(n=10**9), dict(heights=(0.2, 0.1)), dict(reach="x"), dict(heights=(np.nan, 0.1))):
+        with pytest.raises(ValidationError):
+            ex.touch_pool(**{"n": 3, **bad})
+    world = SimWorld(_box(), TRUE, HAND_POSE)
+    with pytest.raises(ValidationError):
+        world.move_object(np.full((4, 4), np.nan))
+    T = TRUE.copy()
+    T[0, 3] += 0.01
+    world.move_object(T)
+    assert np.array_equal(world.object_pose, T)

@@ -488,3 +488,27 @@ def test_map_command_with_a_moving_object(tmp_path):
     assert main(["map", "--mesh", "lemon", "--touches", "6", "--moving", "push", "--fingers", "3",
                  "--plot", str(png)]) == 0
     assert png.exists() and (tmp_path / "s_trajectory.png").exists()
+
+
+def test_explore_picks_from_a_given_candidate_pool(sphere):
+    world = SimulatedWorld(sphere, np.eye(4), rng=0)
+    seen = []
+
+    def pool(rng):
+        touches = box_pool(_bounds(sphere), 8, rng=rng)
+        seen.append({id(t) for t in touches})
+        return touches
+
+    for planner in ("uncertainty", "random"):
+        seen.clear()
+        run = explore(world, _bounds(sphere), 4, planner=planner, candidates=pool, rng=0)
+        assert len(seen) == 4
+        assert all(id(r.touch) in s for r, s in zip(run.results, seen))
+    with pytest.raises(ValidationError):
+        explore(world, _bounds(sphere), 2, candidates=lambda rng: ["not a touch"], rng=0)
+    with pytest.raises(ValidationError):
+        explore(world, _bounds(sphere), 2, candidates=lambda rng: [], rng=0)
+    with pytest.raises(ValidationError):
+        explore(world, _bounds(sphere), 2, planner="lattice", candidates=pool, rng=0)
+    with pytest.raises(ValidationError):
+        explore(world, _bounds(sphere), 2, candidates="pool", rng=0)

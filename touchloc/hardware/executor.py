@@ -149,6 +149,54 @@ class GuardedTouchExecutor:
         d = pw[1] - pw[0]
         return GuardedTouch(pw[0], d, float(np.linalg.norm(d)), name=name or f"finger {finger}")
 
+    def touch_pool(self, n: int = 24, *, rng=None, heights=(0.095, 0.125), reach=(-0.03, 0.04)) -> list:
+        """``n`` random touches the hand can make: a finger (0 or 2, or the thumb) at a random
+        base angle closing along a line of its plane at a random height.
+
+        A candidate pool for planners that pick among touches (``explore(..., candidates=)``),
+        for a hand mounted fingers down over the object, as in the examples.
+
+        Parameters
+        ----------
+        n : int
+        rng : None, int or Generator
+        heights : (float, float)
+            Range of z below the proximal joints (m), along the hand's z axis.
+        reach : (float, float)
+            Start and end of each line along the closing direction (m).
+
+        Returns
+        -------
+        list of GuardedTouch
+            Each one reachable (checked with :meth:`plan`).
+        """
+        from .._util import as_rng
+
+        n = as_count(n, "n", max=10_000, why="touches")
+        rng = as_rng(rng)
+        try:
+            z0, z1 = (float(v) for v in heights)
+            r0, r1 = (float(v) for v in reach)
+        except (TypeError, ValueError):
+            raise ValidationError(f"heights and reach must be two numbers each (m), got {heights!r}, {reach!r}") from None
+        if not all(np.isfinite(v) for v in (z0, z1, r0, r1)) or not (0 <= z0 <= z1 < 0.3 and r0 < r1):
+            raise ValidationError(f"heights must satisfy 0 <= lo <= hi < 0.3 and reach lo < hi (m), got {heights!r}, {reach!r}")
+        out, tries = [], 0
+        while len(out) < n and tries < 50 * n:
+            tries += 1
+            f = int(rng.choice([0, 1, 2]))
+            a0 = 0.0 if f == 1 else float(rng.uniform(0.0, np.pi / 2))
+            z = float(rng.uniform(z0, z1))
+            t = self.finger_touch(f, a0, (r0, z), (r1, z), name=f"finger {f} a0={np.degrees(a0):.0f} z={z * 1e3:.0f}mm")
+            try:
+                self.plan(t, finger=f)
+            except ValidationError:
+                continue
+            out.append(t)
+        if not out:
+            raise ValidationError("no reachable touch in the given heights and reach")
+        return out
+
     def plan(self, touch: GuardedTouch, *, finger: int | None = None) -> TouchPlan:
         """Choose a finger and the joint path for ``touch`` (raises ValidationError if none can)."""
         if not isinstance(touch, GuardedTouch):

@@ -25,7 +25,7 @@ from scipy.special import ndtr
 from .._util import as_rng, progress
 from .._validate import as_bool, as_callable, as_nonnegative_float
 from ..errors import ValidationError
-from ..planners import GuardedTouch, TouchResult
+from ..planners import GuardedTouch, HandTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
 __all__ = ["PLANNERS", "ExplorationRun", "box_pool", "hand_pool", "lattice_pool", "explore", "ray_information"]
@@ -198,6 +198,21 @@ def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = 
     return np.where(ok, (stop * sd * sd).sum(axis=1), 0.0)
 
 
+def _pool(candidates, rng) -> list:
+    """The candidates' list of actions for this step, checked."""
+    pool = candidates(rng)
+    if isinstance(pool, (GuardedTouch, HandTouch)):
+        pool = [pool]
+    try:
+        pool = list(pool)
+    except TypeError:
+        raise ValidationError(f"candidates(rng) must return a list of GuardedTouch or HandTouch, got "
+                              f"{type(pool).__name__}") from None
+    if not pool or not all(isinstance(a, (GuardedTouch, HandTouch)) for a in pool):
+        raise ValidationError("candidates(rng) must return a non-empty list of GuardedTouch or HandTouch")
+    return pool
+
+
 @dataclass
 class ExplorationRun:
     """Record of an exploration: the map, every touch's result and per-touch figures."""
@@ -221,7 +236,7 @@ class ExplorationRun:
 
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
             smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
-            fingers: int = 1,
+            fingers: int = 1, candidates=None,
             rng=None, callback=None, progress_bar=None, **map_kwargs) -> ExplorationRun:
     """Map an unknown object by touching it ``n_touches`` times.
 
@@ -249,6 +264,12 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         1: single guarded touches. More: every action is a hand closing with that many
         fingers at once (:func:`hand_pool`); several contacts of one instant pin down a
         moving object's pose far better than one.
+    candidates : callable, optional
+        ``candidates(rng) -> list of actions`` (GuardedTouch or HandTouch): the pool the
+        ``"random"`` and ``"uncertainty"`` planners pick from at each step, instead of
+        touches from a sphere around the box. A real hand can make only some touches:
+        pass its reachable ones (e.g. ``lambda rng:
+        executor.touch_pool(24, rng=rng)`` for ``HandWorld(executor)``).
     rng : None, int or Generator
     callback : callable, optional
         ``callback(run, step)`` after every touch (e.g. to evaluate the map).
@@ -285,18 +306,29 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     fingers = _as_count(fingers, "fingers", 16)
     if planner == "lattice" and fingers != 1:
         raise ValidationError("the lattice planner makes single touches: use fingers=1")
+    candidates = as_callable(candidates, "candidates", allow_none=True)
+    if candidates is not None and planner == "lattice":
+        raise ValidationError("the lattice planner makes its own touches: leave candidates out")
     lattice = lattice_pool(bounds, n_touches, probe_radius=probe_radius) if planner == "lattice" else None
     run = ExplorationRun(smap, [])
     for i in progress(range(n_touches), total=n_touches, desc="touches", enabled=progress_bar):
         t0 = time.perf_counter()
         score = float("nan")
+        pool = None if candidates is None else _pool(candidates, rng)
         if planner == "lattice":
             action = lattice[i]
+        elif pool is not None and planner == "random":
+            action = pool[int(rng.integers(len(pool)))]
         elif planner == "random":
             action = (box_pool(bounds, 1, rng=rng, probe_radius=probe_radius)[0] if fingers == 1 else
                       hand_pool(bounds, 1, fingers=fingers, rng=rng, probe_radius=probe_radius)[0])
         else:
-            if fingers == 1:
+            if pool is not None:
+                cands = pool
+                flat = [t for c in cands for t in (c.touches if isinstance(c, HandTouch) else (c,))]
+                owner = np.repeat(np.arange(len(cands)), [len(c.touches) if isinstance(c, HandTouch) else 1
+                                                          for c in cands])
+            elif fingers == 1:
                 cands = box_pool(bounds, n_candidates, rng=rng, probe_radius=probe_radius)
                 flat, owner = cands, np.arange(len(cands))
             else:

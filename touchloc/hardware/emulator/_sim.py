@@ -68,6 +68,14 @@ class SimWorld:
         # build the mesh's search structure now, not inside the first reply to a command
         self.obj.closest_points(self._center[None])
 
+    def move_object(self, object_pose) -> None:
+        """Put the object at a new pose (a push, a slip): the hand senses it from then on."""
+        T = np.asarray(object_pose, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValidationError(f"object_pose must be a finite (4, 4) matrix, got {T.shape}")
+        self.object_pose = T
+        self._T_obj_hand = np.linalg.inv(T) @ self.hand_pose
+
     def penetration(self, angles_rad, matrices=range(6)):
         """Penetration depth (m, >= 0) of every texel of the given pads: list of (cells_y, cells_x)."""
         kin = self.kinematics
