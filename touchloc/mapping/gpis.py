@@ -34,7 +34,7 @@ a new kernel matrix of M x n exponentials.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
 from scipy.special import log_ndtr
 
 from ..errors import TouchlocError
@@ -265,10 +265,15 @@ class GPIS:
         m, _ = self.prior(self.Q)
         if self.n == 0 or len(self.Q) == 0:
             return m
+        return m + self._V.T @ self.z
+
+    @property
+    def z(self) -> np.ndarray:
+        """L^-1 (y - m(X)): the whitened residuals; the mean at q is m(q) + (L^-1 k(X, q)) . z."""
         if self._z is None:
             self._z = solve_triangular(self.L, self._residual(self.X, self.kind, self.y), lower=True,
                                        check_finite=False)
-        return m + self._V.T @ self._z
+        return self._z
 
     def tracked_std(self, *, calibrated: bool = True) -> np.ndarray:
         """(len(Q),) posterior standard deviation at the tracked points: equal to
@@ -283,8 +288,9 @@ class GPIS:
     @property
     def alpha(self) -> np.ndarray:
         if self._alpha is None:
-            r = self._residual(self.X, self.kind, self.y) if self.n else np.zeros(0)
-            self._alpha = cho_solve((self.L, True), r, check_finite=False) if self.n else r
+            # K^-1 r = L^-T z: one back-substitution from the whitened residuals (often cached)
+            self._alpha = (solve_triangular(self.L, self.z, lower=True, trans="T", check_finite=False)
+                           if self.n else np.zeros(0))
         return self._alpha
 
     # -- prediction --------------------------------------------------------------------
@@ -387,12 +393,11 @@ class GPIS:
         lam = self.scale if calibrated else 1.0
         mu = np.empty(len(Q))
         var = np.empty(len(Q))
-        a = self.alpha
+        z = self.z      # the variance needs V = L^-1 k(X, q) anyway: the mean is V^T z (no back-substitution)
         for i in range(0, len(Q), _CHUNK):
             q = Q[i:i + _CHUNK]
-            Kq = self._kq(q)
-            mu[i:i + len(q)] = Kq @ a
-            V = solve_triangular(self.L, Kq.T, lower=True, check_finite=False)
+            V = solve_triangular(self.L, self._kq(q).T, lower=True, check_finite=False)
+            mu[i:i + len(q)] = V.T @ z
             var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
         return m + mu, np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
 
