@@ -305,6 +305,25 @@ class GPIS:
             K[:, g] *= (q[:, b[g]] - X[g, b[g]][None, :]) / (self.l * self.l)
         return K
 
+    def _mean_weights(self):
+        """(n,) w0 and (n, 3) wb with mean(q) = m(q) + s^2 sum_j k_j(q) (w0_j + q . wb_j)."""
+        a, X, kind, l2 = self.alpha, self.X, self.kind, self.l * self.l
+        wb = np.stack([np.where(kind == b, a, 0.0) / l2 for b in range(3)], axis=1)
+        return np.where(kind < 0, a, 0.0) - np.einsum("jb,jb->j", wb, X), wb
+
+    def _se(self, q, Xd, xx, dtype):
+        """exp(-|q - x_j|^2 / 2 l^2) for a chunk of queries against every observation point
+        (``Xd`` = X / l and its squared norms ``xx``), built in place."""
+        qd = (q / self.l).astype(dtype)
+        K = qd @ Xd.T
+        K *= -2.0
+        K += xx[None, :]
+        K += np.sum(qd * qd, 1)[:, None]
+        np.maximum(K, 0.0, out=K)
+        K *= -0.5
+        np.exp(K, out=K)
+        return K
+
     def mean(self, Q, *, dtype=np.float64) -> np.ndarray:
         """(M,) posterior mean of f at query points.
 
@@ -315,28 +334,16 @@ class GPIS:
         m, _ = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m
-        a = self.alpha
-        X, kind, l2 = self.X, self.kind, self.l * self.l
         # sum_j K_ij c_ij a_j with c = 1 (values) or (q_ib - x_jb) / l^2 (gradient component b):
         # one kernel matrix, then matrix-vector products only
-        w0 = np.where(kind < 0, a, 0.0)
-        wb = [np.where(kind == b, a, 0.0) / l2 for b in range(3)]
-        w0 = w0 - sum(wb[b] * X[:, b] for b in range(3))
-        W = np.stack([w0] + wb, axis=1).astype(dtype)  # (n, 4)
-        Xd = (X / self.l).astype(dtype)
+        w0, wb = self._mean_weights()
+        W = np.concatenate([w0[:, None], wb], axis=1).astype(dtype)  # (n, 4)
+        Xd = (self.X / self.l).astype(dtype)
         xx = np.sum(Xd * Xd, 1)
         out = np.empty(len(Q))
         for i in range(0, len(Q), _CHUNK):
             q = Q[i:i + _CHUNK]
-            qd = (q / self.l).astype(dtype)
-            K = qd @ Xd.T
-            K *= -2.0
-            K += xx[None, :]
-            K += np.sum(qd * qd, 1)[:, None]
-            np.maximum(K, 0.0, out=K)
-            K *= -0.5
-            np.exp(K, out=K)
-            KW = (K @ W).astype(float)
+            KW = (self._se(q, Xd, xx, dtype) @ W).astype(float)
             out[i:i + len(q)] = self.s2 * (KW[:, 0] + np.einsum("ij,ij->i", q, KW[:, 1:]))
         return m + out
 
@@ -352,10 +359,8 @@ class GPIS:
         m, gm = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m, gm
-        a = self.alpha
-        X, kind, l2 = self.X, self.kind, self.l * self.l
-        wb = np.stack([np.where(kind == b, a, 0.0) / l2 for b in range(3)], axis=1)     # (n, 3)
-        w0 = np.where(kind < 0, a, 0.0) - np.einsum("jb,jb->j", wb, X)
+        X, l2 = self.X, self.l * self.l
+        w0, wb = self._mean_weights()
         W = np.concatenate([w0[:, None], wb, X * w0[:, None], (X[:, :, None] * wb[:, None, :]).reshape(-1, 9)], 1)
         Xd = X / self.l
         xx = np.sum(Xd * Xd, 1)
@@ -363,15 +368,7 @@ class GPIS:
         grad = np.empty((len(Q), 3))
         for i in range(0, len(Q), _CHUNK):
             q = Q[i:i + _CHUNK]
-            qd = q / self.l
-            K = qd @ Xd.T
-            K *= -2.0
-            K += xx[None, :]
-            K += np.sum(qd * qd, 1)[:, None]
-            np.maximum(K, 0.0, out=K)
-            K *= -0.5
-            np.exp(K, out=K)
-            A = K @ W
+            A = self._se(q, Xd, xx, np.float64) @ W
             Ab = A[:, 1:4]
             s1 = A[:, 0] + np.einsum("ib,ib->i", q, Ab)                   # sum_j k_j (w0_j + q . wb_j)
             C = A[:, 7:].reshape(-1, 3, 3)                                # sum_j k_j x_j wb_j^T
