@@ -2,32 +2,36 @@
 
 A touch disturbs what it touches: a probe nudges a free-standing object, an in-hand object
 slips or is turned. :class:`TactileSLAM` estimates the object's pose trajectory and its
-shape together, with a particle filter over the current pose and one shared map in the
-object frame:
+shape together, with one shared map in the object frame and two estimators on it:
 
-1. *predict*: move every pose particle by the odometry (if the hand reports one) and by
-   the motion noise;
-2. *weigh*: score each particle by the new touches against the current map, marginalising
-   the map's own uncertainty: a contact p (normal n) at pose X has object-frame point
-   x = X^-1 p and log-likelihood -1/2 mu(x)^2 / (sd(x)^2 + sigma_pos^2)
-   - 1/2 |u(x) - X^-1 n|^2 / ((sd(x) / l)^2 + sigma_nor^2), with mu and sd the map's mean
-   and standard deviation, u the unit gradient of mu and l the kernel's length scale (a
-   contact where the map is unknown must not turn the pose to match the prior's normal);
-   every swept point y adds log Phi(mu(y) / s) with s^2 = sd(y)^2 + (2 sigma_pos)^2;
-3. *resample* when the effective sample size drops below half;
-4. *map*: fold the touches into the map at the posterior mean pose;
-5. optionally, *odometry scale*: a hand's reported turns are often off by a constant
-   factor, and integrating them alone turns that into an orientation error that grows
-   with every turn; the map's correction of each predicted turn, summed with a small gain,
-   estimates the factor (see :meth:`TactileSLAM._learn_scale`).
+1. a *particle filter* over the current pose. Each update moves the particles by the
+   odometry (if the hand reports one) or the motion noise (not before the first touches,
+   which define the map's frame), weighs them by the new touches against the map, resamples
+   when the effective sample size drops below half, and folds the touches into the map at
+   the posterior mean. A contact p (normal n) at pose X, with x = X^-1 p, scores
+   -1/2 mu(x)^2 / (sd(x)^2 + sigma_pos^2) - 1/2 |u(x) - X^-1 n|^2 / ((sd(x) / l)^2 + sigma_nor^2)
+   (mu and sd the map's mean and standard deviation, u the unit gradient of mu, l the
+   kernel's length scale) and every swept point y adds log Phi(mu(y) / s), each term less
+   the same term scored against the map's prior mean alone: the prior is a placeholder
+   shape, not evidence about the pose;
+2. a *smoother* (:mod:`touchloc.mapping.smoother`) that every few updates revises the
+   recent poses at once, from pairs of nearby contacts made at different steps (they must
+   lie on one surface) and the motion model, after which the map moves every past touch
+   to its revised pose (:meth:`ShapeMap.relocate`). The filter alone cannot undo a pose
+   error made early, when touches land on surface nobody has touched yet; touches made
+   later hold the information to correct it, and the smoother uses it.
 
-Why this estimator: the map and the pose are coupled only through the newest touches, the
-pose posterior after one contact is far from Gaussian (a contact on a face leaves the
-pose free to slide along it), and a few hundred particles on a 3- or 6-D pose cost
-milliseconds against the map's mean, whereas refitting a mesh per step
-(localise-then-map with the static estimators) costs a mesh extraction per touch. A map
-per particle (full Rao-Blackwellisation) would multiply the map's cost by the particle
-count; one shared map updated at the mean pose is the usual compromise.
+Optionally, an *odometry scale*: a hand's reported turns are often off by a constant
+factor; the map's correction of each predicted turn, summed with a small gain, estimates
+the factor (see :meth:`TactileSLAM._learn_scale`).
+
+Why a filter and a smoother on one shared map: the pose posterior after one contact is far
+from Gaussian (a contact on a face leaves the pose free to slide along it), and a few
+hundred particles cost milliseconds against the map's mean, whereas a map per particle
+(full Rao-Blackwellisation) would multiply the map's cost by the particle count and
+localising against a mesh extracted per step costs an extraction per touch. The smoother
+gives the joint correction of many poses that a filter cannot. docs/slam.md has the
+measurements behind each choice.
 """
 
 from __future__ import annotations
