@@ -512,3 +512,9 @@ def test_explore_picks_from_a_given_candidate_pool(sphere):
         explore(world, _bounds(sphere), 2, planner="lattice", candidates=pool, rng=0)
     with pytest.raises(ValidationError):
         explore(world, _bounds(sphere), 2, candidates="pool", rng=0)
+    with pytest.raises(ValidationError):
+        explore(world, _bounds(sphere), 2, candidates=5, rng=0)
+    # a fixed list is the pool at every step
+    fixed = box_pool(_bounds(sphere), 6, rng=1)
+    run = explore(world, _bounds(sphere), 3, candidates=fixed, rng=0)
+    assert all(any(r.touch is t for t in fixed) for r in run.results)

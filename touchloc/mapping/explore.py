@@ -206,10 +206,10 @@ def _pool(candidates, rng) -> list:
     try:
         pool = list(pool)
     except TypeError:
-        raise ValidationError(f"candidates(rng) must return a list of GuardedTouch or HandTouch, got "
+        raise ValidationError(f"candidates must be (or return) a list of GuardedTouch or HandTouch, got "
                               f"{type(pool).__name__}") from None
     if not pool or not all(isinstance(a, (GuardedTouch, HandTouch)) for a in pool):
-        raise ValidationError("candidates(rng) must return a non-empty list of GuardedTouch or HandTouch")
+        raise ValidationError("candidates must be (or return) a non-empty list of GuardedTouch or HandTouch")
     return pool
 
 
@@ -264,12 +264,13 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         1: single guarded touches. More: every action is a hand closing with that many
         fingers at once (:func:`hand_pool`); several contacts of one instant pin down a
         moving object's pose far better than one.
-    candidates : callable, optional
-        ``candidates(rng) -> list of actions`` (GuardedTouch or HandTouch): the pool the
-        ``"random"`` and ``"uncertainty"`` planners pick from at each step, instead of
-        touches from a sphere around the box. A real hand can make only some touches:
-        pass its reachable ones (e.g. ``lambda rng:
-        executor.touch_pool(24, rng=rng)`` for ``HandWorld(executor)``).
+    candidates : list of actions, or callable, optional
+        The pool the ``"random"`` and ``"uncertainty"`` planners pick from, instead of
+        touches from a sphere around the box: a list of actions (GuardedTouch or
+        HandTouch), the same at every step, or ``candidates(rng) -> list of actions``,
+        called at every step. A real hand can make only some touches: pass its reachable
+        ones (e.g. ``lambda rng: executor.touch_pool(24, rng=rng)`` for
+        ``HandWorld(executor)``).
     rng : None, int or Generator
     callback : callable, optional
         ``callback(run, step)`` after every touch (e.g. to evaluate the map).
@@ -306,7 +307,9 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     fingers = _as_count(fingers, "fingers", 16)
     if planner == "lattice" and fingers != 1:
         raise ValidationError("the lattice planner makes single touches: use fingers=1")
-    candidates = as_callable(candidates, "candidates", allow_none=True)
+    if candidates is not None and not callable(candidates):
+        fixed = _pool(lambda rng: candidates, None)
+        candidates = lambda rng: fixed      # noqa: E731
     if candidates is not None and planner == "lattice":
         raise ValidationError("the lattice planner makes its own touches: leave candidates out")
     lattice = lattice_pool(bounds, n_touches, probe_radius=probe_radius) if planner == "lattice" else None
