@@ -100,6 +100,8 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     if n_par == 0 or len(points) < 2:
         return T, info
     P, N, own = np.asarray(points, float), np.asarray(normals, float), np.asarray(owner, np.int64)
+    Dm = np.array([np.eye(4) if m is None else m[0] for m in motions])
+    sigm = np.array([[1.0] * 6 if m is None else [m[1][0]] * 3 + [m[1][1]] * 3 for m in motions])
 
     def associate(T):
         """Neighbour pairs i < j from different steps with agreeing normals (object frame)."""
@@ -142,24 +144,26 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
         m0 = len(I)
         # motion factors: T_s = D T_{s-1}, residual (t_s - R_D t_{s-1} - t_D, rotvec(R_s R_{s-1}^T R_D^T))
         prev = np.concatenate([anchor[None], T[:-1]])
-        mrow = m0
-        for s in np.flatnonzero(free):
-            D, (st, sr) = motions[s]
-            et = T[s, :3, 3] - (D[:3, :3] @ prev[s, :3, 3] + D[:3, 3])
-            er = Rotation.from_matrix(T[s, :3, :3] @ prev[s, :3, :3].T @ D[:3, :3].T).as_rotvec()
-            sig = np.array([st, st, st, sr, sr, sr])[dof]
-            res.append(np.concatenate([et, er])[dof] / sig)
-            r_idx = mrow + np.arange(d)
-            rows.append(r_idx)
-            cols.append(col[s] * d + np.arange(d))
-            vals.append(1.0 / sig)
-            if s > 0 and free[s - 1]:
-                B = np.zeros((6, 6))
-                B[:3, :3] = B[3:, 3:] = -D[:3, :3]
-                rows.append(np.repeat(r_idx, d))
-                cols.append(col[s - 1] * d + np.tile(np.arange(d), d))
-                vals.append((B[np.ix_(dof, dof)] / sig[:, None]).ravel())
-            mrow += d
+        fs = np.flatnonzero(free)
+        RD, tD = Dm[fs, :3, :3], Dm[fs, :3, 3]
+        et = T[fs, :3, 3] - (np.einsum("sij,sj->si", RD, prev[fs, :3, 3]) + tD)
+        er = Rotation.from_matrix(T[fs, :3, :3] @ np.transpose(prev[fs, :3, :3], (0, 2, 1))
+                                  @ np.transpose(RD, (0, 2, 1))).as_rotvec()
+        sig = sigm[fs][:, dof]                                              # (F, d)
+        res.append((np.concatenate([et, er], 1)[:, dof] / sig).ravel())
+        r_idx = m0 + np.arange(len(fs) * d).reshape(-1, d)                  # (F, d)
+        rows.append(r_idx.ravel())
+        cols.append((col[fs, None] * d + np.arange(d)).ravel())
+        vals.append((1.0 / sig).ravel())
+        chain = (fs > 0) & free[np.maximum(fs - 1, 0)]                      # predecessor solved for too
+        if np.any(chain):
+            B = np.zeros((int(chain.sum()), 6, 6))
+            B[:, :3, :3] = B[:, 3:, 3:] = -RD[chain]
+            B = B[:, dof][:, :, dof] / sig[chain][:, :, None]
+            rows.append(np.repeat(r_idx[chain], d, axis=1).ravel())
+            cols.append(np.tile(col[fs[chain] - 1, None] * d + np.arange(d), (1, d)).ravel())
+            vals.append(B.ravel())
+        mrow = m0 + len(fs) * d
         A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                               shape=(mrow, n_par))
         return A, np.concatenate(res), m0
