@@ -80,23 +80,37 @@ class GPIS:
 
     # -- kernel ----------------------------------------------------------------------
     def kernel(self, X1, k1, X2, k2) -> np.ndarray:
-        """Covariance between scalar observations (values and gradient components)."""
-        D = X1[:, None, :] - X2[None, :, :]
+        """Covariance between scalar observations (values and gradient components).
+
+        Rows of kind -1 are values f(x), kind b in 0..2 the gradient component df/dx_b:
+        cov(f(x), f(y)) = k, cov(f(x), d_b f(y)) = k (x_b - y_b) / l^2,
+        cov(d_a f(x), f(y)) = -k (x_a - y_a) / l^2 and
+        cov(d_a f(x), d_b f(y)) = k (delta_ab / l^2 - (x_a - y_a)(x_b - y_b) / l^4).
+        Each block is computed only where its kinds meet.
+        """
+        X1, X2 = np.asarray(X1, float), np.asarray(X2, float)
         l2 = self.l * self.l
-        K = self.s2 * np.exp(-0.5 * np.einsum("ijk,ijk->ij", D, D) / l2)
-        v1, v2 = k1 < 0, k2 < 0
-        if np.all(v1) and np.all(v2):
+        d2 = np.sum(X1 * X1, 1)[:, None] + np.sum(X2 * X2, 1)[None, :] - 2.0 * (X1 @ X2.T)
+        K = self.s2 * np.exp(-0.5 * np.maximum(d2, 0.0) / l2)
+        g1, g2 = k1 >= 0, k2 >= 0
+        if not (np.any(g1) or np.any(g2)):
             return K
-        a = np.where(v1, 0, k1)
-        b = np.where(v2, 0, k2)
-        Da = np.take_along_axis(D, np.broadcast_to(a[:, None, None], (len(X1), len(X2), 1)), axis=2)[..., 0]
-        Db = np.take_along_axis(D, np.broadcast_to(b[None, :, None], (len(X1), len(X2), 1)), axis=2)[..., 0]
-        V1, V2 = v1[:, None], v2[None, :]
-        same = (a[:, None] == b[None, :]).astype(float)
-        f = np.where(V1 & V2, 1.0,
-                     np.where(V1, Db / l2,
-                              np.where(V2, -Da / l2, same / l2 - Da * Db / (l2 * l2))))
-        return K * f
+        v1, v2 = ~g1, ~g2
+        if np.any(g2):
+            b = k2[g2]
+            # Db[i, j] = x1_i[b_j] - x2_j[b_j] for the gradient columns
+            Db = X1[:, b] - X2[g2, b][None, :]
+            if np.any(v1):
+                K[np.ix_(v1, g2)] *= Db[v1] / l2
+        if np.any(g1):
+            a = k1[g1]
+            Da = X1[g1, a][:, None] - X2[:, a].T                                # (n_g1, n2)
+            if np.any(v2):
+                K[np.ix_(g1, v2)] *= -Da[:, v2] / l2
+            if np.any(g2):
+                same = (a[:, None] == b[None, :]).astype(float)
+                K[np.ix_(g1, g2)] *= (same - Da[:, g2] * Db[g1] / l2) / l2
+        return K
 
     # -- data ------------------------------------------------------------------------
     @property
