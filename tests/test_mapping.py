@@ -86,6 +86,15 @@ def test_relocating_the_last_touches_equals_a_map_built_where_they_now_are(spher
     assert np.allclose(m.signed_distance(q), fresh.signed_distance(q), atol=1e-10)
     assert np.allclose(m.surface_std(q), fresh.surface_std(q), atol=1e-10)
     assert np.allclose(m.contacts.points, fresh.contacts.points)
+    # the stored touches moved too (applied when read; two moves compose)
+    pts = lambda mm: np.concatenate([r.contact.points for r in mm.results if r.contact is not None])  # noqa: E731
+    assert np.allclose(pts(m), pts(fresh))
+    U = _move(-0.02, (0.0, 0.001, 0.0))
+    m.relocate([None, U, None, U])
+    fresh2 = ShapeMap(_bounds(sphere, 0.03), free_space=False)
+    for b in [batches[0], transform_results(batches[1], U), batches[2], transform_results(batches[3], U @ T)]:
+        fresh2.update(b)
+    assert np.allclose(pts(m), pts(fresh2)) and np.allclose(m.signed_distance(q), fresh2.signed_distance(q), atol=1e-10)
 
 
 def test_relocation_keeps_the_factors_of_a_refit_and_moves_free_space_with_its_touches(sphere):

@@ -133,7 +133,8 @@ class ShapeMap:
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or not 8 <= resolution <= 512:
             raise ValidationError(f"resolution must be an integer in [8, 512], got {resolution!r}")
         self.resolution = int(resolution)
-        self.results: list = []
+        self._results: list = []
+        self._pending: dict = {}         # batch -> rigid move not yet applied to its stored touches
         self.batches: list = []          # number of results in each update() call
         self._pts = np.zeros((0, 3))
         self._nrm = np.zeros((0, 3))
@@ -156,6 +157,19 @@ class ShapeMap:
                 f"touches={len(self.results)}, contacts={self.n_contacts})")
 
     # -- data ------------------------------------------------------------------------
+    @property
+    def results(self) -> list:
+        """Every TouchResult folded in so far, in the map's frame (moved by :meth:`relocate`)."""
+        if self._pending:
+            from .slam import transform_results
+
+            ends = np.cumsum(self.batches)
+            for b, T in self._pending.items():
+                sl = slice(int(ends[b]) - self.batches[b], int(ends[b]))
+                self._results[sl] = transform_results(self._results[sl], T)
+            self._pending = {}
+        return self._results
+
     @property
     def n_contacts(self) -> int:
         return len(self._pts)
@@ -197,7 +211,7 @@ class ShapeMap:
         if any(n is None for n in nrm):
             self._has_normals = False
         N = np.concatenate([n for n in nrm if n is not None]) if (nrm and self._has_normals) else None
-        self.results.extend(results)
+        self._results.extend(results)
         self.batches.append(len(results))
         if self.method == "gpis":
             self._update_gpis(list(zip(pts, nrm if N is not None else [None] * len(pts))), seg, batch)
@@ -357,7 +371,6 @@ class ShapeMap:
             self.
         """
         from .._validate import as_pose
-        from .slam import transform_results
 
         if isinstance(transforms, np.ndarray) and transforms.ndim == 3:
             transforms = list(transforms)
@@ -378,12 +391,9 @@ class ShapeMap:
         if not moves:
             return self
         first = min(moves)
-        # the stored touches (replayed by save/load) and the contacts
-        ends = np.cumsum(self.batches)
-        res = list(self.results)
+        # the stored touches (replayed by save/load) move when they are next read
         for b, T in moves.items():
-            res[ends[b] - self.batches[b]:ends[b]] = transform_results(res[ends[b] - self.batches[b]:ends[b]], T)
-        self.results = res
+            self._pending[b] = T @ self._pending[b] if b in self._pending else T
 
         def moved(X, owner, rotate_only=False):
             X = X.copy()
