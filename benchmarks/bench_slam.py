@@ -326,8 +326,12 @@ def run(quick: bool = False) -> str:
     return "\n".join(out)
 
 
-def _timing(quick):
-    """Per-update time as the map grows: one long run each, single-threaded, in this process."""
+TIMING_BASELINE = "f653e01"   # before the GPIS factor's two-part storage and lazily dropped pool columns
+
+
+def _timing_raw(quick):
+    """CPU time of each update in one long run per hand, single-threaded, in this process:
+    {fingers: (contacts in the map after each update, seconds)}."""
     import warnings
 
     from touchloc.mapping import MovingWorld, TactileSLAM, explore
@@ -335,47 +339,81 @@ def _timing(quick):
     warnings.simplefilter("ignore")
     obj = quiet_load("milk")
     lo, hi = obj.bounds
-    rows = []
+    out = {}
     for fingers, steps in ((1, 200), (3, 100 if quick else 200)):
         world = MovingWorld(obj, rng=0, push=PUSH, planar=True)
         slam = TactileSLAM((lo - 0.03, hi + 0.03), planar=True, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0), rng=0)
-        cpu = []
-        counts = []
-
-        def cb(run, step):
-            counts.append(step["contacts"])
-
+        cpu, counts = [], []
         orig = slam.update
 
         def timed(*a, **k):
             c0 = time.process_time()
-            out = orig(*a, **k)
+            res = orig(*a, **k)
             cpu.append(time.process_time() - c0)
-            return out
+            return res
 
         slam.update = timed
-        explore(world, (lo - 0.06, hi + 0.06), steps, slam=slam, fingers=fingers, rng=0, callback=cb)
-        cpu, counts = np.array(cpu), np.array(counts)
-        for a, b in ((0, 100), (100, 200), (200, 400), (400, 600)):
-            sel = (counts > a) & (counts <= b)
-            if np.any(sel):
-                rows.append([fingers, f"{a + 1}-{b}", int(sel.sum()), f"{np.median(cpu[sel]) * 1e3:.0f}",
-                             f"{np.percentile(cpu[sel], 95) * 1e3:.0f}", f"{np.max(cpu[sel]) * 1e3:.0f}",
-                             f"{np.mean(cpu[sel]) * 1e3:.0f}"])
-        sm = slam.info["smoothing"]
-        rows[-1].append(f"{len(sm)} runs")
-    for r in rows:
-        if len(r) == 7:
-            r.append("")
+        explore(world, (lo - 0.06, hi + 0.06), steps, slam=slam, fingers=fingers, rng=0,
+                callback=lambda run, step: counts.append(step["contacts"]))
+        out[fingers] = (counts, cpu, len(slam.info["smoothing"]))
+    return out
+
+
+def _timing_baseline(quick):
+    """:func:`_timing_raw` of commit ``TIMING_BASELINE``, in a child process with its tree."""
+    tmp = tempfile.TemporaryDirectory()
+    if baseline_tree(TIMING_BASELINE, tmp.name) is None:
+        return None
+    env = dict(os.environ, PYTHONPATH=tmp.name, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, __file__, "--timing-json"] + (["--quick"] if quick else []), env=env,
+                         capture_output=True, text=True, cwd=str(Path(__file__).parent))
+    tmp.cleanup()
+    if out.returncode != 0:
+        raise RuntimeError(f"baseline timing failed:\n{out.stderr[-3000:]}")
+    return {int(k): v for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
+
+
+def _timing(quick):
+    """Per-update time as the map grows, against the previous commit measured in the same run."""
+    base = _timing_baseline(quick)
+    os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
+    now = _timing_raw(quick)
+    rows = []
+    for fingers, (counts, cpu, n_smooth) in now.items():
+        counts, cpu = np.array(counts), np.array(cpu)
+        b = None
+        if base is not None and fingers in base and np.array_equal(base[fingers][0], counts):
+            b = np.array(base[fingers][1])     # the same run (same contacts after each update)
+        first = True
+        for lo_, hi_ in ((0, 100), (100, 200), (200, 400), (400, 600)):
+            sel = (counts > lo_) & (counts <= hi_)
+            if not np.any(sel):
+                continue
+            row = [fingers, f"{lo_ + 1}-{hi_}", int(sel.sum()), f"{np.median(cpu[sel]) * 1e3:.0f}",
+                   f"{np.percentile(cpu[sel], 95) * 1e3:.0f}", f"{np.max(cpu[sel]) * 1e3:.0f}",
+                   f"{np.mean(cpu[sel]) * 1e3:.0f}"]
+            if b is not None:
+                row += [f"{np.median(b[sel]) * 1e3:.0f} / {np.mean(b[sel]) * 1e3:.0f}",
+                        f"{np.sum(b[sel]) / np.sum(cpu[sel]):.2f}x"]
+            else:
+                row += ["", ""]
+            row.append(f"{n_smooth} runs" if first else "")
+            first = False
+            rows.append(row)
     return ("\n### Update time as the map grows\n\nOne pushed run of the milk carton (seed 0), CPU time of each "
             "`TactileSLAM.update` (smoothing included when it runs) with single-threaded BLAS, in the benchmark's "
-            f"main process (load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end).\n\n"
+            f"main process (load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end). The "
+            f"previous commit ({TIMING_BASELINE}, before the GPIS factor was kept in two parts and dropped pool "
+            "points' columns were left in place) ran the same updates in a child process of the same run, just "
+            "before; the ratio is its total time over this tree's in each row.\n\n"
             + table(["fingers", "contacts in the map", "updates", "median (ms)", "p95 (ms)", "max (ms)", "mean (ms)",
-                     "smoother runs in the whole run"], rows))
+                     f"{TIMING_BASELINE} median / mean (ms)", "speed-up", "smoother runs in the whole run"], rows))
 
 
 if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "--trials-json":
+    if len(sys.argv) >= 2 and sys.argv[1] == "--timing-json":
+        print(json.dumps({k: v for k, v in _timing_raw("--quick" in sys.argv).items()}))
+    elif len(sys.argv) == 3 and sys.argv[1] == "--trials-json":
         specs = json.loads(Path(sys.argv[2]).read_text())
         with ProcessPoolExecutor(_workers()) as ex:
             got = list(ex.map(trial, specs))
