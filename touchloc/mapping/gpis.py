@@ -126,7 +126,7 @@ class GPIS:
         return len(self.y)
 
     # -- the factor ----------------------------------------------------------------------
-    _TAIL = 256   # rows added since the last merge that the factor keeps apart at least
+    _TAIL = 64    # rows added since the last merge that the factor keeps apart at least
 
     @property
     def L(self) -> np.ndarray:
