@@ -155,17 +155,24 @@ def _workers():
 
 
 def _run_all(specs):
+    """The trials on worker processes with single-threaded BLAS.
+
+    The workers are spawned, not forked: BLAS reads its thread count when numpy is first
+    imported, which in this process has already happened, so only a fresh interpreter
+    started with the variables set runs single-threaded (forked workers kept two threads
+    each, four busy threads on two cores).
+    """
+    import multiprocessing
     import types
 
-    env = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    os.environ.update(env)
+    os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
     # benchmarks/run.py loads this file without registering it as a module: register it, so
-    # that the worker processes (forked) find `trial` by name
+    # that `trial` pickles by name (the workers import this file as the module of that name)
     if sys.modules.get(__name__) is None or getattr(sys.modules[__name__], "trial", None) is not trial:
         mod = types.ModuleType(__name__)
         mod.__dict__.update(globals())
         sys.modules[__name__] = mod
-    with ProcessPoolExecutor(_workers()) as ex:
+    with ProcessPoolExecutor(_workers(), mp_context=multiprocessing.get_context("spawn")) as ex:
         return list(ex.map(trial, specs))
 
 
@@ -359,25 +366,27 @@ def _timing_raw(quick):
     return out
 
 
-def _timing_baseline(quick):
-    """:func:`_timing_raw` of commit ``TIMING_BASELINE``, in a child process with its tree."""
+def _timing_child(quick, rev=None):
+    """:func:`_timing_raw` in a child process with single-threaded BLAS: of this tree, or of
+    commit ``rev`` (its ``touchloc`` unpacked on the child's path)."""
     tmp = tempfile.TemporaryDirectory()
-    if baseline_tree(TIMING_BASELINE, tmp.name) is None:
-        return None
-    env = dict(os.environ, PYTHONPATH=tmp.name, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    if rev is not None:
+        if baseline_tree(rev, tmp.name) is None:
+            return None
+        env["PYTHONPATH"] = tmp.name
     out = subprocess.run([sys.executable, __file__, "--timing-json"] + (["--quick"] if quick else []), env=env,
                          capture_output=True, text=True, cwd=str(Path(__file__).parent))
     tmp.cleanup()
     if out.returncode != 0:
-        raise RuntimeError(f"baseline timing failed:\n{out.stderr[-3000:]}")
+        raise RuntimeError(f"timing run failed:\n{out.stderr[-3000:]}")
     return {int(k): v for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
 
 
 def _timing(quick):
     """Per-update time as the map grows, against the previous commit measured in the same run."""
-    base = _timing_baseline(quick)
-    os.environ.update({k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")})
-    now = _timing_raw(quick)
+    base = _timing_child(quick, TIMING_BASELINE)
+    now = _timing_child(quick)
     rows = []
     for fingers, (counts, cpu, n_smooth) in now.items():
         counts, cpu = np.array(counts), np.array(cpu)
@@ -401,11 +410,11 @@ def _timing(quick):
             first = False
             rows.append(row)
     return ("\n### Update time as the map grows\n\nOne pushed run of the milk carton (seed 0), CPU time of each "
-            "`TactileSLAM.update` (smoothing included when it runs) with single-threaded BLAS, in the benchmark's "
-            f"main process (load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end). The "
-            f"previous commit ({TIMING_BASELINE}, before the GPIS factor was kept in two parts and dropped pool "
-            "points' columns were left in place) ran the same updates in a child process of the same run, just "
-            "before; the ratio is its total time over this tree's in each row.\n\n"
+            "`TactileSLAM.update` (smoothing included when it runs), in a child process with single-threaded BLAS "
+            f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end). The previous commit "
+            f"({TIMING_BASELINE}, before the GPIS factor was kept in two parts and dropped pool points' columns "
+            "were left in place) ran the same updates the same way in the same run, just before; the ratio is its "
+            "total time over this tree's in each row.\n\n"
             + table(["fingers", "contacts in the map", "updates", "median (ms)", "p95 (ms)", "max (ms)", "mean (ms)",
                      f"{TIMING_BASELINE} median / mean (ms)", "speed-up", "smoother runs in the whole run"], rows))
 
