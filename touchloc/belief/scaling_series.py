@@ -53,6 +53,10 @@ class ScalingSeries:
         Floor on the particle count of the first cover of the region.
     max_particles : int
         Cap on the particles of one scale (bounds time when the belief is very spread).
+        6000 by default: at 5 contacts the cap binds for about half of the scales, and on
+        held-out trials 6000 localised as often as 20000 (the earlier default) in half the
+        time (benchmarks/study_particle_cap.py; docs/benchmarks.md, "Scaling Series'
+        particle cap").
     prune : {"threshold", "resample"}
         The Prune step of Alg. 1: every particle whose annealed weight is at least
         ``prune_ratio`` times the best ("threshold", default), or the distinct particles
@@ -95,7 +99,7 @@ class ScalingSeries:
     """
 
     def __init__(self, model, *, delta_final: float | None = None, m_per_delta: int = 6,
-                 n_initial: int = 2000, max_particles: int = 20000, prune: str = "threshold",
+                 n_initial: int = 2000, max_particles: int = 6000, prune: str = "threshold",
                  prune_ratio: float = 1e-3, anneal: str | float = "alg1", final_moves: int = 3,
                  n_posterior: int = 500, final_stages: int = 60, dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
