@@ -70,10 +70,10 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         ' and stopping hopeless candidates early in `identify` (a rule on the annealed '
         'evidence named the mug for a can, whose good poses are few at high temperature; a '
         'sound bound on the best cost triggers only in the last scales and saved under '
-        '10 %). Measured but not made default: a particle cap of 6000 instead of 20000 cuts '
-        '5-contact CPU time 1.6-2.5x (and mug/lemon at 10 contacts up to 2x) with ADD-S '
-        'below 5 mm in 23 of 24 trials (mug, can, milk, lemon; 5 and 10 contacts; 3 seeds) '
-        'against 24 of 24; the one miss went from 4.7 to 5.1 mm.'
+        '10 %). The particle cap per scale is now 6000 (was 20000): on held-out trials it '
+        'cut 5-contact CPU time 2.2x with 38 of 42 localised against 36 of 42, and was level '
+        'at 10 and 30 contacts (section "Scaling Series\' particle cap"); it accounts for '
+        'most of the step from the earlier rows of this table to these.'
         ' Against the tree just before this step (commit 666723a, `TOUCHLOC_BENCH_BASELINE=666723a python benchmarks/bench_speed.py --quick`, same workers, load average 11-22 on 2 cores): mug 1.4x at 5 and at 10 contacts, 1.1x at 30, can 1.1x at 10 contacts, `identify` 1.6x.')
 HELD_OUT = ["can", "lemon", "bread", "cereal"]
 
