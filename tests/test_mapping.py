@@ -527,3 +527,48 @@ def test_explore_picks_from_a_given_candidate_pool(sphere):
     fixed = box_pool(_bounds(sphere), 6, rng=1)
     run = explore(world, _bounds(sphere), 3, candidates=fixed, rng=0)
     assert all(any(r.touch is t for t in fixed) for r in run.results)
+
+
+def test_gpis_factor_in_two_parts_and_lazily_dropped_pool_points_agree_with_a_refit():
+    """Rows added one block at a time (past the merge of the factor's parts), pool points
+    tracked and dropped in between (dropped columns left in place until compaction), then
+    a relocation of the later rows: the factor, diag(K^-1) and the tracked means and
+    deviations must equal a refactorisation and direct predictions."""
+    from touchloc.mapping.gpis import GPIS
+
+    rng = np.random.default_rng(4)
+
+    def prior(X):
+        r = np.linalg.norm(X, axis=1) + 1e-12
+        return r - 0.04, X / r[:, None]
+
+    gp = GPIS(0.02, 0.01, prior)
+    gp.track(rng.uniform(-0.06, 0.06, (300, 3)))
+    for i in range(60):
+        v = rng.normal(size=3)
+        v /= np.linalg.norm(v)
+        p = 0.045 * v
+        gp.add(np.repeat(p[None], 4, 0), np.array([-1, 0, 1, 2]), np.concatenate([[0.0], v]),
+               np.array([1e-6, 3e-3, 3e-3, 3e-3]))
+        if i % 5 == 0:
+            gp.untrack(rng.random(len(gp.Q)) > 0.2)
+            gp.track(rng.uniform(-0.06, 0.06, (20, 3)))
+    assert len(gp._L0) > 0 and gp.n > len(gp._L0)           # both parts in use
+    assert len(gp._Qp) > len(gp.Q)                          # dropped columns still held
+
+    def check():
+        mu, sd = gp.mean_std(gp.Q)
+        assert np.allclose(gp.tracked_mean(), mu, atol=1e-10)
+        assert np.allclose(gp.tracked_std(), sd, atol=1e-10)
+        L, dKi = gp.L.copy(), gp._dKi.copy()
+        ref = GPIS(gp.l, np.sqrt(gp.s2), prior)
+        ref.add(gp.X, gp.kind, gp.y, gp.noise)
+        ref.refactor()
+        assert np.allclose(L, ref.L, atol=1e-10) and np.allclose(dKi, ref._dKi, rtol=1e-8)
+
+    check()
+    X = gp.X.copy()
+    X[120:] += 0.002                                        # move the later rows
+    gp.relocate(X, gp.y, gp.Q, start=120)
+    assert len(gp._Qp) == len(gp.Q)                         # compacted
+    check()
