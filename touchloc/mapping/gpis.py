@@ -27,8 +27,8 @@ refactorisation in O((n + k)^3). The factor is held in two parts, a contiguous l
 block and the rows added since, in a buffer that grows without copying: a triangular
 solve needs its matrix contiguous, and copying the whole factor on every update cost
 more than the update's own arithmetic (16 ms of about 30 at 2200 rows). The rows are
-merged into the leading block once they are a quarter of it, so the copy is paid about
-once per doubling of the map.
+merged into the leading block once they pass 64 rows and a quarter of it, so the copy is
+paid once per quarter's growth of the map (amortised O(n) per added row).
 
 A set of *tracked* query points (the free-space pool of :class:`ShapeMap`, whose mean is
 needed after every update) keeps V = L^-1 K(X, Q): each added block extends V by k rows
@@ -161,7 +161,7 @@ class GPIS:
         n, k, n0 = self.n, len(L2), len(self._L0)
         n1 = n - n0
         if n1 + k > max(self._TAIL, n0 // 4):
-            self._L0 = self.L     # merge: the one O(n^2) copy, about once per doubling
+            self._L0 = self.L     # merge: the one O(n^2) copy, once per quarter's growth
             n0, n1 = n, 0
         self._Tb = _grown(self._Tb, n1 + k, n + k, n1, n)
         self._Tb[n1:n1 + k, :n] = W.T
