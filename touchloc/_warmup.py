@@ -137,6 +137,9 @@ def _warm(obj, full):
         model.query_costs(P, None, method="fast")  # position-only grid lists
         model.query_costs(P, N, method="bruteforce")
         obj.closest_points(P)
+        from .models import IntegratedProximityModel
+
+        IntegratedProximityModel(obj, 0.002, 0.1, spacing=0.02).query_log_density(P, N)
 
 
 def _warm_cover():
