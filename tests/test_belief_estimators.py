@@ -226,3 +226,23 @@ def test_identify_skips_the_posterior_stage_unless_beliefs_are_returned(objects)
     assert all("cover" not in b.info for b in covers.values())
     _, beliefs = identify(models, contacts, region, rng=0, return_beliefs=True, **small)
     assert all("cover" in b.info for b in beliefs.values())
+
+
+def test_scaling_series_posterior_stage_can_use_its_own_model(box):
+    # the same 1-D problem: the search runs on a 4 mm model, the posterior sample on a
+    # 2 mm one, whose analytic posterior is N(mu, (2 mm)^2)
+    region, c, model, mu, _ = one_dof_problem(box, sigma=0.004)
+    sharp = ProximityModel(box, 0.002, None)
+    sds = {}
+    for name, post in (("own", None), ("sharp", sharp)):
+        b = ScalingSeries(model, posterior_model=post, n_posterior=2000, rng=2).localize(c, region)
+        x = b.poses[:, 0, 3]
+        assert np.mean(x) == pytest.approx(mu, abs=0.0005)
+        sds[name] = np.std(x)
+    assert sds["own"] == pytest.approx(0.004, rel=0.15)
+    assert sds["sharp"] == pytest.approx(0.002, rel=0.15)
+    other = MeshObject(trimesh.creation.box(extents=(0.08, 0.05, 0.03)), name="other")
+    with pytest.raises(ValidationError, match="same MeshObject"):
+        ScalingSeries(model, posterior_model=ProximityModel(other, 0.002, None))
+    with pytest.raises(ValidationError, match="measurement model"):
+        ScalingSeries(model, posterior_model="integrated")

@@ -89,6 +89,12 @@ class ScalingSeries:
         Particles of the posterior sample.
     final_stages : int
         Cap on the tempering steps of the posterior stage.
+    posterior_model : MeasurementModel, optional
+        The likelihood of the posterior stage (default: ``model``). The search over
+        scales needs a fast model; the posterior sample needs a faithful one. An
+        :class:`~touchloc.models.IntegratedProximityModel` here costs the stage's few
+        hundred particles a slower likelihood and makes the belief's spread the
+        spread of the sensor's own density (docs/localization.md, "calibration").
     dynamics : GaussianDynamics, optional
         For the dynamic filter (initialize / predict / update).
     rho : float, optional
@@ -101,9 +107,12 @@ class ScalingSeries:
     def __init__(self, model, *, delta_final: float | None = None, m_per_delta: int = 6,
                  n_initial: int = 2000, max_particles: int = 6000, prune: str = "threshold",
                  prune_ratio: float = 1e-3, anneal: str | float = "alg1", final_moves: int = 3,
-                 n_posterior: int = 500, final_stages: int = 60, dynamics=None,
+                 n_posterior: int = 500, final_stages: int = 60, posterior_model=None, dynamics=None,
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
+        self.posterior_model = None if posterior_model is None else check_model(posterior_model)
+        if self.posterior_model is not None and getattr(self.posterior_model, "obj", None) is not self.model.obj:
+            raise ValidationError("posterior_model must describe the same MeshObject as model")
         delta_final = None if delta_final is None else as_positive_float(delta_final, "delta_final (m)")
         m_per_delta = as_count(m_per_delta, "m_per_delta", max=1000, why="each sub-step is one likelihood pass")
         n_initial = as_count(n_initial, "n_initial", max=MAX_PARTICLES, why=WHY_PARTICLES)
@@ -281,8 +290,10 @@ class ScalingSeries:
         idx = self.rng.choice(len(X), self.n_posterior, replace=len(X) < self.n_posterior)
         P = X[idx]
 
+        model = self.posterior_model or self.model
+
         def new(Q):
-            return finite_loglik(self.model.log_likelihood(Q, contacts))
+            return finite_loglik(model.log_likelihood(Q, contacts))
         l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
         P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
                                               moves=self.final_moves, max_stages=self.final_stages, rng=self.rng)
