@@ -128,3 +128,17 @@ def test_bad_settings_are_refused(slab):
         IntegratedProximityModel(slab, SIGMA, SIGMA_N, spacing=float("nan"))
     with pytest.raises(ValidationError, match="surface_prior"):
         IntegratedProximityModel(slab, SIGMA, SIGMA_N, surface_prior=lambda p, n: -np.ones(len(p)))
+
+
+def test_the_log_density_is_continuous_from_the_surface_outwards(ball):
+    # along a ray out of the sphere (the sum, the blend and the approximation in turn),
+    # with the surface's normal and with one 40 deg off (which the normals nearby fit
+    # badly): no jumps, only the Gaussian's slope of at most 6 sigma x 0.01 sigma per step
+    m = IntegratedProximityModel(ball, SIGMA, SIGMA_N)
+    u = np.array([0.36, 0.48, 0.8])
+    r = 0.03 + SIGMA * np.arange(0.0, 6.0, 0.01)
+    off = np.array([np.cos(0.7) * u[0] - np.sin(0.7) * u[1], np.sin(0.7) * u[0] + np.cos(0.7) * u[1], u[2]])
+    for n in (u, off):
+        ll = m.query_log_density(r[:, None] * u, np.tile(n, (len(r), 1)))
+        assert np.all(np.isfinite(ll))
+        assert np.max(np.abs(np.diff(ll))) < 0.065
