@@ -142,3 +142,20 @@ def test_the_log_density_is_continuous_from_the_surface_outwards(ball):
         ll = m.query_log_density(r[:, None] * u, np.tile(n, (len(r), 1)))
         assert np.all(np.isfinite(ll))
         assert np.max(np.abs(np.diff(ll))) < 0.065
+
+
+def test_object_frame_queries_refuse_bad_arrays_with_a_clear_error(slab):
+    m = IntegratedProximityModel(slab, SIGMA, SIGMA_N)
+    prox = ProximityModel(slab, SIGMA, SIGMA_N)
+    good = np.array([[0.0, 0.0, 0.026]])
+    for f in (m.query_log_density, prox.query_costs):
+        for pts, nrm, what in (([[np.nan, 0.0, 0.0]], [[0.0, 0.0, 1.0]], "finite"), ("abc", None, "array"),
+                               ([[0.0, 0.0]], None, r"\(M, 3\)"), (good, [[0.0, 0.0, 0.0]], "non-zero"),
+                               (good, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], "one row per point")):
+            with pytest.raises(ValidationError, match=what):
+                f(pts, nrm)
+        # normals are made unit length; nothing is returned for no queries
+        assert np.allclose(f(good, [[0.0, 0.0, 3.0]]), f(good, [[0.0, 0.0, 1.0]]))
+        assert f(np.zeros((0, 3))).shape == (0,)
+    # a point absurdly far away has zero density, not NaN
+    assert m.query_log_density([[1e300, 0.0, 0.0]], [[1.0, 0.0, 0.0]])[0] == -np.inf

@@ -11,7 +11,7 @@ from .._validate import as_callable, as_count, as_positive_float
 from ..errors import ValidationError
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
-from .proximity import ProximityModel, _check_contacts, _to_object_frame
+from .proximity import ProximityModel, _check_contacts, _to_object_frame, check_queries
 
 __all__ = ["IntegratedProximityModel"]
 
@@ -128,10 +128,17 @@ class IntegratedProximityModel(MeasurementModel):
         return float(c)
 
     def query_log_density(self, points, normals=None) -> np.ndarray:
-        """log p of object-frame measurements (M,) for the object at the identity pose."""
-        P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        use_n = normals is not None and self.sigma_nor is not None
-        Nr = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3) if use_n else np.zeros((0, 3))
+        """log p of object-frame measurements (M,) for the object at the identity pose.
+
+        Parameters
+        ----------
+        points : (M, 3) float
+        normals : (M, 3) float or None
+            Made unit length; None (or a model without ``sigma_nor``) scores positions only.
+        """
+        P, Nr = check_queries(points, normals)
+        use_n = Nr is not None and self.sigma_nor is not None
+        Nr = Nr if use_n else np.zeros((0, 3))
         g = self._grid
         inv_n = 1.0 / self.sigma_nor**2 if use_n else 0.0
         near, dmin2 = _neighbourhood_lse(P, Nr, use_n, g.points, g.normals, g.logw_rel, g.wmax, g.start, g.lo, g.cell,
@@ -150,7 +157,8 @@ class IntegratedProximityModel(MeasurementModel):
             far = per - 0.5 * self._proximity.query_costs(P[cand], Nr[cand] if use_n else None)
             w = u[cand]
             mixed = np.logaddexp(near[cand], far - FALLBACK_NATS)
-            near[cand] = np.where(w >= 1.0, far, (1.0 - w) * mixed + w * far)
+            with np.errstate(invalid="ignore"):   # 0 x -inf in the branch not taken
+                near[cand] = np.where(w >= 1.0, far, np.where(w <= 0.0, mixed, (1.0 - w) * mixed + w * far))
         return near
 
     def _area(self) -> float:

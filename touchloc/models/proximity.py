@@ -6,7 +6,7 @@ import numpy as np
 
 from .._cache import cached_structure
 from .._util import as_poses
-from .._validate import as_count, as_nonnegative_float, as_positive_float
+from .._validate import as_count, as_nonnegative_float, as_points, as_positive_float
 from ..errors import ValidationError
 from . import _kernels as K
 from .base import MeasurementModel, check_temperature
@@ -141,9 +141,9 @@ class ProximityModel(MeasurementModel):
         points : (M, 3) float
         normals : (M, 3) float or None
         """
-        P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        use_n = normals is not None and self.sigma_nor is not None
-        N = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3) if use_n else None
+        P, N = check_queries(points, normals)
+        use_n = N is not None and self.sigma_nor is not None
+        N = N if use_n else None
         w = self._weight(use_n)
         method = method or self.method
         if method == "auto":
@@ -233,6 +233,21 @@ class ProximityModel(MeasurementModel):
         if contacts.has_normals and self.sigma_nor is not None:
             per -= np.log(2 * np.pi * self.sigma_nor**2)
         return float(per * len(contacts))
+
+
+def check_queries(points, normals=None):
+    """Object-frame queries: (M, 3) finite points and, if given, (M, 3) finite non-zero
+    normals (returned as unit vectors), or a clear error."""
+    P = np.ascontiguousarray(as_points(points, "points", allow_empty=True), dtype=np.float64)
+    if normals is None:
+        return P, None
+    N = as_points(normals, "normals", allow_empty=True)
+    if len(N) != len(P):
+        raise ValidationError(f"normals must have one row per point: {len(N)} normals for {len(P)} points")
+    norm = np.linalg.norm(N, axis=1)
+    if np.any(norm < 1e-12):
+        raise ValidationError(f"normals must be non-zero, row {int(np.flatnonzero(norm < 1e-12)[0])} is zero")
+    return P, np.ascontiguousarray(N / norm[:, None])
 
 
 def _check_contacts(contacts) -> Contacts:
