@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-ESTIMATORS = ("SMCFilter (2000)", "Scaling Series")
+ESTIMATORS = ("SMCFilter", "Scaling Series")
 MODELS = ("proximity", "integrated")
 _cache: dict = {}
 
@@ -54,7 +54,7 @@ def _models(mesh, sigma_pos, sigma_nor):
 
 
 def _one(job):
-    mesh, k, t, offset, sigma_pos, sigma_nor = job
+    mesh, k, t, offset, sigma_pos, sigma_nor, estimators, smc_kw, models = job
     warnings.simplefilter("ignore")
     import bench_calibration as B
     from touchloc.belief import ScalingSeries, SMCFilter, hpd_level
@@ -65,11 +65,13 @@ def _one(job):
     seed = 10_000 * k + 100 * (B.MESHES + B.HELD_OUT_MESHES).index(mesh) + offset + t
     true, c = B.trial(obj, region, k, seed)
     out = []
-    for est in ESTIMATORS:
+    for est in estimators:
         for name, model in (("proximity", prox), ("integrated", integ)):
+            if name not in models:
+                continue
             t0 = time.process_time()
             if est.startswith("SMC"):
-                b = SMCFilter(model, 2000, rng=seed).localize(c, region)
+                b = SMCFilter(model, rng=seed, **smc_kw).localize(c, region)
             else:   # the search on the proximity model; the posterior stage on the model named
                 b = ScalingSeries(prox, posterior_model=model, rng=seed).localize(c, region)
             dt = time.process_time() - t0
@@ -88,8 +90,10 @@ def _table(rows, levels=(0.5, 0.9, 0.95)):
     meshes = list(dict.fromkeys(r["mesh"] for r in rows))
     ks = sorted({r["k"] for r in rows})
     out = []
-    for est in ESTIMATORS:
-        for name in MODELS:
+    ests = [e for e in ESTIMATORS if any(r["estimator"] == e for r in rows)]
+    models = [m for m in MODELS if any(r["model"] == m for r in rows)]
+    for est in ests:
+        for name in models:
             sel = [r for r in rows if r["estimator"] == est and r["model"] == name]
             for k in ks + ["all"]:
                 rr = [r for r in sel if k == "all" or r["k"] == k]
@@ -97,8 +101,8 @@ def _table(rows, levels=(0.5, 0.9, 0.95)):
                 out.append((est, name, k, len(q), *(f"{100 * np.mean(q < a):.0f} %" for a in levels),
                             f"{np.median([r['cpu'] for r in rr]):.2f}"))
     per_mesh = []
-    for est in ESTIMATORS:
-        for name in MODELS:
+    for est in ests:
+        for name in models:
             row = [est, name]
             for m in meshes:
                 q = np.array([r["level"] for r in rows if r["estimator"] == est and r["model"] == name
@@ -122,13 +126,22 @@ def main(argv=None) -> int:
     ap.add_argument("--sigma", nargs=2, type=float, default=[B.SIGMA_POS, B.SIGMA_NOR],
                     metavar=("POS", "NOR"), help="the sensor's noise, which both models are given")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--estimators", nargs="+", choices=["smc", "ss"], default=["smc", "ss"])
+    ap.add_argument("--particles", type=int, default=2000, help="SMCFilter's particles")
+    ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
+    ap.add_argument("--jumps", type=float, default=None,
+                    help="SMCFilter's accepted moves per particle and tempering step (default: its own)")
     ap.add_argument("--jsonl", help="also write every trial here")
     a = ap.parse_args(argv)
     bad = [m for m in a.meshes if m not in B.MESHES + B.HELD_OUT_MESHES]
     if bad:
         ap.error(f"meshes must be among {B.MESHES + B.HELD_OUT_MESHES}, got {bad}")
-    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1]) for t in range(a.trials) for k in a.contacts
-            for m in a.meshes]
+    ests = [e for e in ESTIMATORS if ("smc" if e.startswith("SMC") else "ss") in a.estimators]
+    smc_kw = {"n_particles": a.particles}
+    if a.jumps is not None:
+        smc_kw["jumps"] = a.jumps
+    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models) for t in range(a.trials)
+            for k in a.contacts for m in a.meshes]
     rows = []
     w0 = time.time()
     sink = open(a.jsonl, "w") if a.jsonl else None
@@ -143,7 +156,8 @@ def main(argv=None) -> int:
     print(file=sys.stderr)
     load = os.getloadavg()[0]
     print(f"{len(jobs)} trials in {time.time() - w0:.0f} s wall; sensor {a.sigma[0] * 1e3:g} mm / {a.sigma[1]:g}; "
-          f"seed offsets {a.offset}-{a.offset + a.trials - 1}; load average {load:.1f}\n")
+          f"seed offsets {a.offset}-{a.offset + a.trials - 1}; SMCFilter settings {smc_kw}; "
+          f"load average {load:.1f}\n")
     print(_table(rows))
     return 0
 

@@ -1,4 +1,4 @@
-"""A belief whose spread means what it says: the sensor's own density in the SMC filter.
+"""The SMC filter with the proximity and with the integrated proximity model, side by side.
 
 A mug stands on a table at a hidden position and yaw. A simulated sensor touches it k
 times: each contact is a point drawn uniformly over the surface plus Gaussian noise on the

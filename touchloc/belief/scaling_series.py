@@ -91,10 +91,9 @@ class ScalingSeries:
         Cap on the tempering steps of the posterior stage.
     posterior_model : MeasurementModel, optional
         The likelihood of the posterior stage (default: ``model``). The search over
-        scales needs a fast model; the posterior sample needs a faithful one. An
-        :class:`~touchloc.models.IntegratedProximityModel` here costs the stage's few
-        hundred particles a slower likelihood and makes the belief's spread the
-        spread of the sensor's own density (docs/localization.md, "calibration").
+        scales needs a fast model; the posterior sample may want a more faithful one,
+        such as an :class:`~touchloc.models.IntegratedProximityModel`, which then costs
+        only the stage's few hundred particles. It must describe the same object.
     dynamics : GaussianDynamics, optional
         For the dynamic filter (initialize / predict / update).
     rho : float, optional
