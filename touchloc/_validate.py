@@ -199,19 +199,27 @@ def as_points(x, name: str, *, allow_empty: bool = False) -> np.ndarray:
 
 
 def _check_rigid(a: np.ndarray, name: str, tol: float) -> None:
-    """Raise unless every (4, 4) in ``a`` (N, 4, 4) is a proper rigid transform."""
+    """Raise unless every (4, 4) in ``a`` (N, 4, 4) is a proper rigid transform.
+
+    Column by column, not with batched matrix products: the estimators validate every
+    batch of particles they are handed, and for 3 x 3 blocks elementwise arithmetic on
+    (N,) arrays is several times faster than ``einsum`` and LAPACK's batched ``det``.
+    """
     bottom = a[:, 3, :]
     if np.any(np.abs(bottom - np.array([0.0, 0.0, 0.0, 1.0])) > tol):
         i = int(np.flatnonzero(np.any(np.abs(bottom - [0, 0, 0, 1]) > tol, axis=1))[0])
         raise ValidationError(f"{name}[{i}] must have bottom row [0, 0, 0, 1], got {bottom[i].tolist()}")
-    R = a[:, :3, :3]
-    err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+    c0, c1, c2 = a[:, :3, 0], a[:, :3, 1], a[:, :3, 2]
+    err = np.abs(np.einsum("ni,ni->n", c0, c0) - 1.0)
+    for x, y, one in ((c1, c1, 1.0), (c2, c2, 1.0), (c0, c1, 0.0), (c0, c2, 0.0), (c1, c2, 0.0)):
+        np.maximum(err, np.abs(np.einsum("ni,ni->n", x, y) - one), out=err)
     if np.any(err > tol):
         i = int(np.flatnonzero(err > tol)[0])
         raise ValidationError(
             f"{name}[{i}] rotation must be orthonormal (|R^T R - I| <= {tol:g}), deviation {err[i]:.3g}"
         )
-    det = np.linalg.det(R)
+    # the determinant as the triple product of the columns
+    det = np.einsum("ni,ni->n", c0, np.cross(c1, c2))
     if np.any(np.abs(det - 1.0) > 10 * tol):
         i = int(np.flatnonzero(np.abs(det - 1.0) > 10 * tol)[0])
         raise ValidationError(
