@@ -197,18 +197,28 @@ def test_a_dnf_sweep_from_toml_runs_through_the_command(tmp_path, capsys):
 
 
 class _CountingThreads:
-    """A thread pool that counts the trials it finished (whatever became of their rows)."""
+    """A thread pool that counts the trials it finished (whatever became of their rows).
 
-    def __init__(self, n):
+    With a ``gate`` (a threading.Event), every trial after the first ``free`` waits for it
+    before it starts, so that a test can interrupt the run while trials are surely left,
+    however fast they are."""
+
+    def __init__(self, n, gate=None, free=2):
         import concurrent.futures as cf
         import threading
 
         self.pool = cf.ThreadPoolExecutor(n)
         self.finished = []
         self.lock = threading.Lock()
+        self.gate, self.free, self.submitted = gate, free, 0
 
     def submit(self, fn, params):
+        held = self.gate is not None and self.submitted >= self.free
+        self.submitted += 1
+
         def run():
+            if held:
+                self.gate.wait(timeout=30)
             row = fn(params)
             with self.lock:
                 self.finished.append(row["trial_id"])
@@ -224,12 +234,14 @@ def test_an_interrupt_records_the_trials_that_were_running(tmp_path):
     trials = Sweep(meshes=["cereal"], estimators=[{"name": "pf", "n_particles": 20000}], contacts=[10],
                    seeds=12).trials()
     out = tmp_path / "r.csv"
-    ex = _CountingThreads(2)
+    gate = threading.Event()
+    ex = _CountingThreads(2, gate=gate)
 
     def interrupt_after_the_first_row():
         while not (out.exists() and len(_data_lines(out)) >= 1):
             time.sleep(0.01)
         _thread.interrupt_main()  # a KeyboardInterrupt in the thread running run_sweep
+        gate.set()                # the held trials go on; the sweep sees the interrupt first
 
     threading.Thread(target=interrupt_after_the_first_row, daemon=True).start()
     with pytest.raises(KeyboardInterrupt):
