@@ -118,3 +118,34 @@ def baseline_tree(rev: str, dest) -> Path | None:
     except (OSError, subprocess.CalledProcessError, tarfile.TarError):
         return None
     return Path(dest)
+
+
+class TreeWorker:
+    """A process running ``script --worker`` with the touchloc package of ``path`` first on
+    its path (this checkout, or a baseline unpacked by :func:`baseline_tree`), answering
+    one JSON request per line; refuses to start if it imported touchloc from elsewhere."""
+
+    def __init__(self, script, path: Path, env: dict | None = None):
+        import json
+        import sys
+
+        env = dict(os.environ, PYTHONPATH=str(path), PYTHONWARNINGS="ignore", **(env or {}))
+        self.p = subprocess.Popen([sys.executable, str(Path(script).resolve()), "--worker"], cwd=str(path),
+                                  env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        hello = json.loads(self.p.stdout.readline())
+        if not Path(hello["touchloc"]).resolve().is_relative_to(Path(path).resolve()):
+            raise RuntimeError(f"benchmark worker imported {hello['touchloc']}, not the tree under {path}")
+
+    def ask(self, **req):
+        import json
+
+        self.p.stdin.write(json.dumps(req) + "\n")
+        self.p.stdin.flush()
+        line = self.p.stdout.readline()
+        if not line:
+            raise RuntimeError("benchmark worker died")
+        return json.loads(line)
+
+    def close(self):
+        self.p.stdin.close()
+        self.p.wait(timeout=60)

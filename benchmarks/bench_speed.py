@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -200,28 +199,11 @@ def _cover(m, cube, k, seed):
 
 
 # -- driver side -------------------------------------------------------------------------
-class _Worker:
-    def __init__(self, path: Path, threads: int | None):
-        env = dict(os.environ, PYTHONPATH=str(path), PYTHONWARNINGS="ignore")
-        if threads:
-            env["NUMBA_NUM_THREADS"] = str(threads)
-        self.p = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker"], cwd=str(path),
-                                  env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-        hello = json.loads(self.p.stdout.readline())
-        if not Path(hello["touchloc"]).resolve().is_relative_to(path.resolve()):
-            raise RuntimeError(f"benchmark worker imported {hello['touchloc']}, not the tree under {path}")
+def _Worker(path: Path, threads: int | None):
+    """A worker on the touchloc of ``path``, with ``threads`` numba threads (None: numba's default)."""
+    from _common import TreeWorker
 
-    def ask(self, **req):
-        self.p.stdin.write(json.dumps(req) + "\n")
-        self.p.stdin.flush()
-        line = self.p.stdout.readline()
-        if not line:
-            raise RuntimeError("benchmark worker died")
-        return json.loads(line)
-
-    def close(self):
-        self.p.stdin.close()
-        self.p.wait(timeout=60)
+    return TreeWorker(__file__, path, {"NUMBA_NUM_THREADS": str(threads)} if threads else None)
 
 
 def _fmt_row(label, k, base, cur):

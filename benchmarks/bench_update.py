@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -69,31 +68,9 @@ def worker() -> int:
     return 0
 
 
-class _Worker:
-    def __init__(self, path: Path):
-        env = dict(os.environ, PYTHONPATH=str(path), PYTHONWARNINGS="ignore")
-        self.p = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker"], cwd=str(path),
-                                  env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-        hello = json.loads(self.p.stdout.readline())
-        if not Path(hello["touchloc"]).resolve().is_relative_to(path.resolve()):
-            raise RuntimeError(f"benchmark worker imported {hello['touchloc']}, not the tree under {path}")
-
-    def ask(self, **req):
-        self.p.stdin.write(json.dumps(req) + "\n")
-        self.p.stdin.flush()
-        line = self.p.stdout.readline()
-        if not line:
-            raise RuntimeError("benchmark worker died")
-        return json.loads(line)
-
-    def close(self):
-        self.p.stdin.close()
-        self.p.wait(timeout=60)
-
-
 def run(quick: bool = False) -> str:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from _common import baseline_tree, table
+    from _common import TreeWorker, baseline_tree, table
 
     meshes = ["mug"] if quick else ["mug", "can", "milk", "cereal"]
     seeds = [0, 1] if quick else [0, 1, 2]
@@ -101,8 +78,8 @@ def run(quick: bool = False) -> str:
     rows, all_cur, all_base = [], [], []
     with tempfile.TemporaryDirectory() as tmpd:
         base_path = baseline_tree(BASELINE, Path(tmpd) / "base")
-        cur = _Worker(ROOT)
-        base = _Worker(base_path) if base_path else None
+        cur = TreeWorker(__file__, ROOT)
+        base = TreeWorker(__file__, base_path) if base_path else None
         for mesh in meshes:
             c_runs, b_runs = [], []
             for seed in seeds:
