@@ -199,26 +199,28 @@ def test_a_dnf_sweep_from_toml_runs_through_the_command(tmp_path, capsys):
 class _CountingThreads:
     """A thread pool that counts the trials it finished (whatever became of their rows).
 
-    With a ``gate`` (a threading.Event), every trial after the first ``free`` waits for it
-    before it starts, so that a test can interrupt the run while trials are surely left,
-    however fast they are."""
+    With ``interrupt_at=k``, the k-th trial submitted (from 0) raises KeyboardInterrupt
+    instead of running: the sweep's loop then meets it in the main thread when it collects
+    that trial, as it would meet a Ctrl-C while it waits, but at a known point rather than
+    whenever a signal happens to be seen (which made an earlier form of this test flaky
+    on a loaded machine)."""
 
-    def __init__(self, n, gate=None, free=2):
+    def __init__(self, n, interrupt_at=None):
         import concurrent.futures as cf
         import threading
 
         self.pool = cf.ThreadPoolExecutor(n)
         self.finished = []
         self.lock = threading.Lock()
-        self.gate, self.free, self.submitted = gate, free, 0
+        self.interrupt_at, self.submitted = interrupt_at, 0
 
     def submit(self, fn, params):
-        held = self.gate is not None and self.submitted >= self.free
+        interrupt = self.submitted == self.interrupt_at
         self.submitted += 1
 
         def run():
-            if held:
-                self.gate.wait(timeout=30)
+            if interrupt:
+                raise KeyboardInterrupt
             row = fn(params)
             with self.lock:
                 self.finished.append(row["trial_id"])
@@ -228,25 +230,11 @@ class _CountingThreads:
 
 
 def test_an_interrupt_records_the_trials_that_were_running(tmp_path):
-    import signal
-    import threading
-
     trials = Sweep(meshes=["cereal"], estimators=[{"name": "pf", "n_particles": 20000}], contacts=[10],
                    seeds=12).trials()
     out = tmp_path / "r.csv"
-    gate = threading.Event()
-    ex = _CountingThreads(2, gate=gate)
-
-    def interrupt_after_the_first_row():
-        while not (out.exists() and len(_data_lines(out)) >= 1):
-            time.sleep(0.01)
-        # a real SIGINT at the main thread, as Ctrl-C sends it: it wakes the thread from
-        # its wait for the trials (a flag set by _thread.interrupt_main is seen only when
-        # that thread next runs, and was missed now and then on a loaded machine)
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
-        gate.set()                # the held trials go on; the sweep sees the interrupt first
-
-    threading.Thread(target=interrupt_after_the_first_row, daemon=True).start()
+    # two trials run; the third, started when one of them ends, is the interrupt
+    ex = _CountingThreads(2, interrupt_at=2)
     with pytest.raises(KeyboardInterrupt):
         run_sweep(trials, out, executor_obj=ex, parquet=False)
     ex.pool.shutdown(wait=True)
