@@ -129,6 +129,8 @@ def main(argv=None) -> int:
     ap.add_argument("--estimators", nargs="+", choices=["smc", "ss"], default=["smc", "ss"])
     ap.add_argument("--particles", type=int, default=2000, help="SMCFilter's particles")
     ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
+    ap.add_argument("--ess", type=float, default=None,
+                    help="SMCFilter's ess_fraction: the share of the effective sample size kept per tempering step")
     ap.add_argument("--jumps", type=float, default=None,
                     help="SMCFilter's accepted moves per particle and tempering step (default: its own)")
     ap.add_argument("--jsonl", help="also write every trial here")
@@ -140,6 +142,8 @@ def main(argv=None) -> int:
     smc_kw = {"n_particles": a.particles}
     if a.jumps is not None:
         smc_kw["jumps"] = a.jumps
+    if a.ess is not None:
+        smc_kw["ess_fraction"] = a.ess
     jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models) for t in range(a.trials)
             for k in a.contacts for m in a.meshes]
     rows = []

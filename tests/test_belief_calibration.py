@@ -217,3 +217,30 @@ def test_second_opinion_recovers_a_lost_mode(box):
     right.update(c)
     assert abs(right.second_opinion(rng=5)) < 0.3
     assert np.mean(np.abs(right.belief.poses[:, 0, 3] - 0.006) < 0.001) > 0.95
+
+
+def test_gentle_tempering_keeps_a_narrow_heavy_mode_in_proportion_over_x_y_and_yaw():
+    # a mode with 70 % of the mass (0.5 mm, 1 deg) against one four times wider, on the
+    # planar region: with the default steps (half the effective sample size kept) runs of
+    # 2000 particles gave it 52 +- 29 % and lost it once in 12; keeping 95 % per step gives
+    # 66 +- 10 %. 12 runs: the mean within 0.1 of 0.7 and a spread below 0.15 (the default
+    # steps fail both).
+    region = PoseRegion.planar((0.0, 0.0), 0.05, z=0.0).with_rho(0.04)
+
+    def ll(P):
+        x, y = P[:, 0, 3], P[:, 1, 3]
+        w = np.arctan2(P[:, 1, 0], P[:, 0, 0])
+
+        def mode(mx, mw, s, sw):
+            dw = np.angle(np.exp(1j * (w - mw)))
+            return -0.5 * (((x - mx) / s) ** 2 + (y / s) ** 2 + (dw / sw) ** 2) - 2 * np.log(s) - np.log(sw)
+        return np.logaddexp(np.log(0.7) + mode(-0.01, 0.0, 0.0005, np.radians(1.0)),
+                            np.log(0.3) + mode(0.01, 2.0, 0.002, np.radians(4.0)))
+
+    weights = []
+    for seed in range(12):
+        P0 = region.sample(2000, rng=seed)
+        P, *_ = temper(P0, np.full(2000, -np.log(2000)), np.zeros(2000), ll(P0), None, ll, region,
+                       ess_fraction=0.95, rng=seed)
+        weights.append(np.mean(P[:, 0, 3] < 0))
+    assert abs(np.mean(weights) - 0.7) < 0.1 and np.std(weights) < 0.15, weights
