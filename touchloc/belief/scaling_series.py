@@ -110,7 +110,7 @@ class ScalingSeries:
                  rho: float | None = None, progress: bool | None = None, rng=None):
         self.model = check_model(model)
         self.posterior_model = None if posterior_model is None else check_model(posterior_model)
-        if self.posterior_model is not None and getattr(self.posterior_model, "obj", None) is not self.model.obj:
+        if self.posterior_model is not None and self.posterior_model.obj is not self.model.obj:
             raise ValidationError("posterior_model must describe the same MeshObject as model")
         delta_final = None if delta_final is None else as_positive_float(delta_final, "delta_final (m)")
         m_per_delta = as_count(m_per_delta, "m_per_delta", max=1000, why="each sub-step is one likelihood pass")

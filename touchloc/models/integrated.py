@@ -137,18 +137,20 @@ class IntegratedProximityModel(MeasurementModel):
             Made unit length; None (or a model without ``sigma_nor``) scores positions only.
         """
         P, Nr = check_queries(points, normals)
-        use_n = Nr is not None and self.sigma_nor is not None
+        return self._log_density(P, Nr if self.sigma_nor is not None else None)
+
+    def _log_density(self, P, Nr):
+        """:meth:`query_log_density` of checked, contiguous queries (``Nr`` None: positions only)."""
+        use_n = Nr is not None
         Nr = Nr if use_n else np.zeros((0, 3))
         g = self._grid
         inv_n = 1.0 / self.sigma_nor**2 if use_n else 0.0
         near, dmin2 = _neighbourhood_lse(P, Nr, use_n, g.points, g.normals, g.logw_rel, g.wmax, g.start, g.lo, g.cell,
                                          g.dims, 0.5 / self.sigma_pos**2, inv_n, g.cutoff**2)
         near += self._constant(use_n)
-        # the tangent-plane approximation of the best match: where the surface is far, or
-        # where no nearby surface point's normal fits
-        per = -np.log(self._area()) - 0.5 * np.log(2 * np.pi * self.sigma_pos**2)
-        if use_n:
-            per -= np.log(2 * np.pi * self.sigma_nor**2)
+        # the tangent-plane approximation of the best match (the proximity cost and its
+        # normaliser): where the surface is far, or where no nearby surface point's normal fits
+        per = self._proximity._log_normalizer_per_contact(use_n)
         u = np.clip((np.sqrt(dmin2) / self.sigma_pos - BLEND) / (FAR - BLEND), 0.0, 1.0)
         # the approximation is at most `per`: below per - FALLBACK_NATS + 4 it may move
         # the sum by more than exp(-4) = 2 %
@@ -161,9 +163,6 @@ class IntegratedProximityModel(MeasurementModel):
                 near[cand] = np.where(w >= 1.0, far, np.where(w <= 0.0, mixed, (1.0 - w) * mixed + w * far))
         return near
 
-    def _area(self) -> float:
-        return float(self.obj.mesh.area_faces[self.obj.valid_faces].sum())
-
     def log_likelihood(self, poses, contacts=None, temperature: float = 1.0, *, chunk: int = 4096) -> np.ndarray:
         """(N,) sum_k log p(D_k | X) / temperature (normalised densities: metres^-3 per
         contact, times rad^-2 with normals)."""
@@ -175,8 +174,9 @@ class IntegratedProximityModel(MeasurementModel):
         out = np.empty(len(poses))
         K = len(contacts)
         for a in range(0, len(poses), chunk):
-            P, Nr = _to_object_frame(poses[a:a + chunk], contacts)
-            ll = self.query_log_density(P.reshape(-1, 3), Nr.reshape(-1, 3) if use_n else None)
+            P, Nr = _to_object_frame(poses[a:a + chunk], contacts)   # already checked: no second pass
+            ll = self._log_density(np.ascontiguousarray(P.reshape(-1, 3)),
+                                   np.ascontiguousarray(Nr.reshape(-1, 3)) if use_n else None)
             out[a:a + chunk] = ll.reshape(-1, K).sum(axis=1)
         return out / T
 

@@ -229,10 +229,14 @@ class ProximityModel(MeasurementModel):
         Needed only when comparing evidence between different objects.
         """
         contacts = _check_contacts(contacts)
+        return self._log_normalizer_per_contact(contacts.has_normals) * len(contacts)
+
+    def _log_normalizer_per_contact(self, use_normals: bool) -> float:
+        """:meth:`log_normalizer` of one contact (with or without its normal)."""
         per = -np.log(self.obj.mesh.area) - 0.5 * np.log(2 * np.pi * self.sigma_pos**2)
-        if contacts.has_normals and self.sigma_nor is not None:
+        if use_normals and self.sigma_nor is not None:
             per -= np.log(2 * np.pi * self.sigma_nor**2)
-        return float(per * len(contacts))
+        return float(per)
 
 
 def check_queries(points, normals=None):
