@@ -165,6 +165,19 @@ def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = 
     samples = _as_count(samples, "samples", 10_000)
     if not isinstance(score, str) or score not in ("variance", "entropy"):
         raise ValidationError(f"score must be 'variance' or 'entropy', got {score!r}")
+    P, ok, mu, sd, p_in, reach = _ray_samples(smap, touches, samples)
+    if score == "entropy":
+        H = -(p_in * np.log(p_in) + (1 - p_in) * np.log1p(-p_in))
+        return np.where(ok, (reach * H).sum(axis=1), 0.0)
+    # expected shape variance where the probe stops: sum_k P(stop at k) sd_k^2
+    stop = reach * p_in
+    return np.where(ok, (stop * sd * sd).sum(axis=1), 0.0)
+
+
+def _ray_samples(smap, touches, samples):
+    """Points along each touch's path inside the map's box, the map there, and the
+    probabilities of reaching each point: ``(P (C, S, 3), ok (C,), mu, sd, p_in, reach)``,
+    the last four (C, S). ``ok`` is False for paths that miss the box."""
     lo, hi = smap.lo, smap.hi
     O = np.array([t.origin for t in touches])
     D = np.array([t.direction for t in touches])
@@ -187,15 +200,54 @@ def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = 
         p_in = ndtr(-mu / sd)
     else:
         p_in = 1.0 / (1.0 + np.exp(mu))
-    p_in = np.clip(p_in.reshape(len(touches), samples), 1e-9, 1 - 1e-9)
-    reach = np.cumprod(np.concatenate([np.ones((len(touches), 1)), 1 - p_in[:, :-1]], axis=1), axis=1)
-    if score == "entropy":
-        H = -(p_in * np.log(p_in) + (1 - p_in) * np.log1p(-p_in))
-        return np.where(ok, (reach * H).sum(axis=1), 0.0)
-    # expected shape variance where the probe stops: sum_k P(stop at k) sd_k^2
-    stop = reach * p_in
-    sd = sd.reshape(len(touches), samples)
-    return np.where(ok, (stop * sd * sd).sum(axis=1), 0.0)
+    C = len(touches)
+    p_in = np.clip(p_in.reshape(C, samples), 1e-9, 1 - 1e-9)
+    reach = np.cumprod(np.concatenate([np.ones((C, 1)), 1 - p_in[:, :-1]], axis=1), axis=1)
+    return P, ok, mu.reshape(C, samples), sd.reshape(C, samples), p_in, reach
+
+
+def slam_information(smap: ShapeMap, touches, owner, cov, *, samples: int = 24) -> np.ndarray:
+    """(A,) expected information (nats) of each action about the shape *and* the object's pose.
+
+    For a moving object a touch is worth what it teaches about both. Each touch of action
+    ``a`` (``owner[c] == a``) is expected to stop at sample k of its path with probability
+    P_k (as in :func:`ray_information`), where the map's standard deviation is sd_k:
+
+    - shape: sum_k P_k 1/2 log(1 + sd_k^2 / sigma^2), sigma the contacts' noise;
+    - pose: a contact at x (object frame), where the map's unit normal is n, measures the
+      surface's offset along n, which a pose change xi = (v, w) in the object frame moves
+      by J xi, J = [n, x x n]. The action's touches together give the information
+      1/2 log det(I + L^T M L), M = sum_c sum_k P_k J_k^T J_k / (sigma^2 + sd_k^2) (the
+      expected Fisher information over where each touch may stop), with cov = L L^T the
+      pose's covariance (:meth:`TactileSLAM.pose_covariance`).
+
+    A touch on a face that slides along itself (the body of a mug turning about its own
+    axis) carries no pose information about that turn; one on the handle does. Touches
+    must be given in the map's (object) frame.
+    """
+    touches = list(touches)
+    owner = np.asarray(owner, dtype=np.int64)
+    A = int(owner.max()) + 1
+    sig2 = smap.sigma_pos**2
+    P, ok, mu, sd, p_in, reach = _ray_samples(smap, touches, samples)
+    stop = np.where(ok[:, None], reach * p_in, 0.0)
+    shape = np.bincount(owner, weights=(stop * 0.5 * np.log1p(sd * sd / sig2)).sum(axis=1), minlength=A)
+    if smap.method != "gpis":
+        return shape
+    C, S = stop.shape
+    # only samples where the probe may stop matter: the map's gradient there
+    use = stop > 1e-3
+    n = np.zeros((C, S, 3))
+    if np.any(use):
+        g = smap._gp.mean_grad(P[use])[1]
+        n[use] = g / np.maximum(np.linalg.norm(g, axis=1), 1e-12)[:, None]
+    J = np.concatenate([n, np.cross(P, n)], axis=2)               # (C, S, 6)
+    lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    JL = J @ (V * np.sqrt(np.clip(lam, 0.0, None)))
+    w = stop / (sig2 + sd * sd)                                     # (C, S)
+    M = np.zeros((A, 6, 6))
+    np.add.at(M, owner, np.einsum("cs,csi,csj->cij", w, JL, JL))
+    return shape + 0.5 * np.linalg.slogdet(np.eye(6) + M)[1]
 
 
 def _pool(candidates, rng) -> list:
@@ -339,9 +391,13 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
                                   probe_radius=probe_radius)
                 flat = [t for h in cands for t in h.touches]
                 owner = np.repeat(np.arange(len(cands)), fingers)
-            scored = flat if slam is None else [r.touch for r in transform_results(
-                [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.pose))]
-            info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
+            if slam is None:
+                info = np.bincount(owner, weights=ray_information(smap, flat), minlength=len(cands))
+            else:
+                # scored against the map where the object is expected at the touch
+                scored = [r.touch for r in transform_results(
+                    [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.predicted_pose()))]
+                info = slam_information(smap, scored, owner, slam.pose_covariance())
             k = int(np.argmax(info))
             action, score = cands[k], float(info[k])
         t1 = time.perf_counter()

@@ -161,11 +161,113 @@ class TactileSLAM:
         # per update: its contacts (world frame), its motion model, its map batch (or None)
         self._steps: list = []
         self._next_smooth = self.smooth_every
+        self._last_odometry = None
+        # covariance of (pose in the object frame (6), odometry scale) tracked from the
+        # contacts' own geometry; see pose_covariance
+        self._cov = np.zeros((7, 7))
+        self._cov[6, 6] = self._SCALE_PRIOR_SD**2 if self.learn_odometry_scale else 0.0
 
     @property
     def pose(self) -> np.ndarray:
         """(4, 4) current T_world_object estimate (posterior mean)."""
         return self.trajectory[-1].copy()
+
+    def predicted_pose(self) -> np.ndarray:
+        """(4, 4) the pose expected at the next update: the current estimate moved by the
+        last update's odometry (a hand turning an object in steps repeats its turn), or the
+        current estimate when the last update had none."""
+        T = self.trajectory[-1]
+        return T.copy() if self._last_odometry is None else self._last_odometry @ T
+
+    def pose_covariance(self, *, predict: bool = True) -> np.ndarray:
+        """(6, 6) covariance of the pose in the object frame, tracked from the touches' geometry.
+
+        A pose ``T`` near the estimate ``T0`` is written ``T = T0 exp(xi)``, ``xi = (v, w)``:
+        translation ``v`` (m) and rotation vector ``w`` (rad) in the object frame, so that
+        an object point ``x`` moves by ``v + w x x``. The covariance grows by the motion
+        model (and, with ``learn_odometry_scale``, by the scale's uncertainty times the
+        turn) and shrinks by the Fisher information of each step's contacts: a contact at
+        ``x`` with normal ``n`` fixes ``n . v + (x x n) . w`` to the sensor's noise plus
+        the map's uncertainty there. It is computed from the *measured* normals, so a
+        turn that slides a surface along itself (a solid of revolution about its axis)
+        stays as uncertain as the motion model makes it, however confident the particles
+        are. With ``predict`` it is the covariance at the next update (one more step of
+        the motion model).
+        """
+        C = self._cov
+        if predict and self._steps:
+            sig = self.odometry_noise if self._last_odometry is not None else self.motion
+            C = self._predict_cov(C, sig, self._last_odometry)
+        return 0.5 * (C[:6, :6] + C[:6, :6].T)
+
+    def _masks(self, R0):
+        mt = np.diag([1.0, 1.0, 0.0]) if self.planar else np.eye(3)
+        mr = np.diag([0.0, 0.0, 1.0]) if self.planar else np.eye(3)
+        return R0.T @ mt @ R0, R0.T @ mr @ R0
+
+    def _predict_cov(self, C, sig, D):
+        """The tracked covariance one step on: motion noise, and the scale's share of a turn."""
+        R0 = self.trajectory[-1][:3, :3]
+        Mt, Mr = self._masks(R0)
+        C = C.copy()
+        if D is not None and self.learn_odometry_scale:
+            # the turn scaled by (s + ds) turns the object further by ds * w (object frame)
+            F = np.eye(7)
+            F[3:6, 6] = R0.T @ Rotation.from_matrix(D[:3, :3]).as_rotvec()
+            C = F @ C @ F.T
+        C[:3, :3] += sig[0] ** 2 * Mt
+        C[3:6, 3:6] += sig[1] ** 2 * Mr
+        return C
+
+    def _update_cov(self, C, T, results):
+        """The tracked covariance after this step's contacts (Kalman form, at pose T)."""
+        hits = [r.contact for r in results if r.contact is not None]
+        if not hits or self.map.n_contacts == 0:
+            return C
+        c = Contacts.concatenate(hits)
+        x = (c.points - T[:3, 3]) @ T[:3, :3]
+        # the map's normal there, not the measured one: the map's averages many contacts,
+        # while a measured normal's noise (5 deg on a mug's 40 mm radius) would lend a
+        # contact on a solid of revolution a lever about its axis that it does not have
+        if self.map.method == "gpis":
+            n = self.map._gp.mean_grad(np.clip(x, self.map.lo, self.map.hi))[1]
+        elif c.normals is not None:
+            n = c.normals @ T[:3, :3]
+        else:
+            return C
+        n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
+        H = np.zeros((len(x), 7))
+        H[:, :3], H[:, 3:6] = n, np.cross(x, n)
+        r = self.map.sigma_pos**2 + self.map.surface_std(np.clip(x, self.map.lo, self.map.hi)) ** 2
+        S = H @ C @ H.T + np.diag(r)
+        K = np.linalg.solve(S, H @ C).T
+        C = C - K @ H @ C
+        return 0.5 * (C + C.T)
+
+    def _inflate(self, P):
+        """Spread the particles, about their mean, to at least the tracked covariance.
+
+        The particles' own spread says how well the map fixed the pose; where the map is
+        wrong in a way that looks certain (the body of a mug not yet a solid of revolution
+        "fixing" a turn about its axis) it is too small, and a touch that then shows the
+        turn (the handle) falls outside it. The shortfall is added as random motion.
+        """
+        w = np.exp(self.log_w - logsumexp(self.log_w))
+        R0 = Rotation.from_matrix(P[:, :3, :3]).mean(weights=w).as_matrix()
+        t0 = w @ P[:, :3, 3]
+        xi = np.concatenate([(P[:, :3, 3] - t0) @ R0,
+                             Rotation.from_matrix(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
+        m = w @ xi
+        Cp = np.einsum("n,ni,nj->ij", w, xi - m, xi - m)
+        lam, V = np.linalg.eigh(self._cov[:6, :6] - Cp)
+        keep = lam > 1e-12
+        if not np.any(keep):
+            return P
+        E = self.rng.standard_normal((len(P), int(keep.sum()))) * np.sqrt(lam[keep]) @ V[:, keep].T
+        out = P.copy()
+        out[:, :3, 3] += np.einsum("nij,nj->ni", P[:, :3, :3], E[:, :3])
+        out[:, :3, :3] = P[:, :3, :3] @ Rotation.from_rotvec(E[:, 3:]).as_matrix()
+        return out
 
     def _mean_pose(self):
         w = np.exp(self.log_w - logsumexp(self.log_w))
@@ -209,8 +311,11 @@ class TactileSLAM:
         else:
             P = self.particles
             sig = self.motion
+        self._last_odometry = D
         if sig is not None:
             P = _perturb(P, sig[0], sig[1], self.planar, self.rng)
+            self._cov = self._predict_cov(self._cov, sig, D)
+            P = self._inflate(P)
         if self.map.n_contacts > 0:
             ll = self._log_likelihood(P, results)
             lw = self.log_w + ll
@@ -226,8 +331,11 @@ class TactileSLAM:
             lw = np.full(len(P), -np.log(len(P)))
         self.particles, self.log_w = P, lw
         T = self._mean_pose()
+        prior_cov = self._cov
+        if sig is not None:
+            self._cov = self._update_cov(self._cov, T, results)
         if D is not None and self.learn_odometry_scale:
-            self._learn_scale(D, T, results)
+            self._learn_scale(D, T, results, prior_cov)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -301,8 +409,9 @@ class TactileSLAM:
     _SCALE_GAIN = 0.05
     _SCALE_RANGE = (0.8, 1.25)
     _SCALE_MIN_CONTACTS = 30
+    _SCALE_PRIOR_SD = 0.05
 
-    def _learn_scale(self, D, T, results):
+    def _learn_scale(self, D, T, results, prior_cov):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
 
         The map's correction of the predicted pose, projected on the odometry's turn axis,
@@ -316,9 +425,14 @@ class TactileSLAM:
         n_hit = sum(len(r.contact) for r in results if r.contact is not None)
         if theta < 1e-6 or n_hit < 2 or self.map.n_contacts < self._SCALE_MIN_CONTACTS:
             return
+        # how much of the turn this step's contacts showed (0: none, a surface sliding
+        # along itself; 1: all), from the tracked covariance about the turn's axis
+        a = self.trajectory[-1][:3, :3].T @ (w / theta)
+        v0, v1 = a @ prior_cov[3:6, 3:6] @ a, a @ self._cov[3:6, 3:6] @ a
+        seen = float(np.clip(1.0 - v1 / v0, 0.0, 1.0)) if v0 > 0 else 1.0
         pred = D @ self.trajectory[-1]
         innov = Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
-        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / theta)
+        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * seen * innov / theta)
         self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
         self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
 
