@@ -27,6 +27,7 @@ from .._validate import as_bool, as_callable, as_nonnegative_float
 from ..errors import ValidationError
 from ..planners import GuardedTouch, HandTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
+from .slam import pose_jacobian
 
 __all__ = ["PLANNERS", "ExplorationRun", "box_pool", "hand_pool", "lattice_pool", "explore", "ray_information"]
 
@@ -241,7 +242,7 @@ def slam_information(smap: ShapeMap, touches, owner, cov, *, samples: int = 24) 
     if np.any(use):
         g = smap._gp.mean_grad(P[use])[1]
         n[use] = g / np.maximum(np.linalg.norm(g, axis=1), 1e-12)[:, None]
-    J = np.concatenate([n, np.cross(P, n)], axis=2)               # (C, S, 6)
+    J = pose_jacobian(P, n, smap.sigma_nor)                        # (C, S, 6)
     lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
     JL = J @ (V * np.sqrt(np.clip(lam, 0.0, None)))
     w = stop / (sig2 + sd * sd)                                     # (C, S)

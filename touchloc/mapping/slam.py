@@ -47,7 +47,7 @@ from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
-__all__ = ["TactileSLAM", "MovingWorld", "transform_results"]
+__all__ = ["TactileSLAM", "MovingWorld", "transform_results", "pose_jacobian"]
 
 
 def _as_pose(T, name):
@@ -237,7 +237,7 @@ class TactileSLAM:
             return C
         n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
         H = np.zeros((len(x), 7))
-        H[:, :3], H[:, 3:6] = n, np.cross(x, n)
+        H[:, :6] = pose_jacobian(x, n, self.map.sigma_nor)
         r = self.map.sigma_pos**2 + self.map.surface_std(np.clip(x, self.map.lo, self.map.hi)) ** 2
         S = H @ C @ H.T + np.diag(r)
         K = np.linalg.solve(S, H @ C).T
@@ -505,6 +505,26 @@ class TactileSLAM:
             ll += log_ndtr(mu / scale).reshape(N, -1).sum(axis=1)
             ll -= log_ndtr(pm / np.sqrt(prior_var + (2 * smap.sigma_pos + 1e-4) ** 2)).reshape(N, -1).sum(axis=1)
         return ll
+
+
+def pose_jacobian(x, n, sigma_nor):
+    """(..., 6) how a contact's offset along the surface normal moves with the pose.
+
+    A contact at ``x`` (object frame) on a surface with unit normal ``n`` measures
+    ``n . (v + w x x)`` for a pose change ``(v, w)``: the row is ``[n, x x n]``. The
+    lever ``x x n`` is only as good as the normal: a normal off by an angle of
+    ``sigma_nor`` moves each of its components (about the object's axes) by up to
+    ``sigma_nor`` times the distance of ``x`` from that axis, so each component is
+    shrunk by that much (positive-part, as a James-Stein estimate): on a solid of
+    revolution, a normal a few degrees off the radius no longer lends a contact a lever
+    about the axis that the surface does not have.
+    """
+    lever = np.cross(x, n)
+    x2 = x * x
+    dist2 = np.stack([x2[..., 1] + x2[..., 2], x2[..., 0] + x2[..., 2], x2[..., 0] + x2[..., 1]], axis=-1)
+    noise2 = sigma_nor**2 * dist2
+    shrink = np.clip(1.0 - noise2 / np.maximum(lever * lever, 1e-30), 0.0, None)
+    return np.concatenate([n, lever * shrink], axis=-1)
 
 
 def _scaled_turn(D, scale):
