@@ -258,3 +258,93 @@ def test_slam_maps_an_object_the_emulated_hand_nudges():
     err = [add_s(box, a, b) for a, b in zip(slam.trajectory[1:], world.trajectory[1:])]
     assert max(err) < 0.005
     assert len(slam.map.to_mesh().mesh.faces) > 100
+
+
+def _milk_map(milk):
+    """A GPIS map of the milk carton from contacts sampled at the identity pose."""
+    from touchloc.models import Contacts
+    from touchloc.planners import GuardedTouch, TouchResult
+
+    pts, idx = milk.mesh.sample(150, return_index=True, seed=0)
+    nor = milk.mesh.face_normals[idx]
+    smap = ShapeMap(_box(milk, 0.03), sigma_pos=0.001, sigma_nor=0.087)
+    smap.update([TouchResult(GuardedTouch(p + 0.03 * n, -n, 0.05), 0.03, Contacts(p[None], n[None]))
+                 for p, n in zip(pts, nor)])
+    return smap
+
+
+def test_pose_information_of_a_touch_follows_its_lever_arm(milk):
+    """A contact on a side face fixes a turn about the vertical axis by its offset from the
+    axis: a touch through the axis carries no yaw information, one off to the side does;
+    both fix the translation across the face alike."""
+    from touchloc.mapping.explore import slam_information
+    from touchloc.planners import GuardedTouch
+
+    smap = _milk_map(milk)
+    lo, hi = milk.bounds
+    c = 0.5 * (lo + hi)
+    start = hi[0] + 0.05
+    through = GuardedTouch((start, c[1], c[2]), (-1.0, 0.0, 0.0), 0.2)
+    off = GuardedTouch((start, c[1] + 0.25 * (hi[1] - lo[1]), c[2]), (-1.0, 0.0, 0.0), 0.2)
+    yaw = np.zeros((6, 6))
+    yaw[5, 5] = np.deg2rad(10.0) ** 2
+    tx = np.zeros((6, 6))
+    tx[0, 0] = 0.003**2
+    none = slam_information(smap, [through, off], [0, 1], np.zeros((6, 6)))
+    iy = slam_information(smap, [through, off], [0, 1], yaw) - none
+    ix = slam_information(smap, [through, off], [0, 1], tx) - none
+    # 11 mm off the axis, 10 deg moves the face by 1.9 mm: about 1/2 log(1 + 1.9^2 / 1.25) nats
+    assert iy[0] < 0.05 and 0.3 < iy[1] < 1.0
+    # 3 mm across a face measured to 1 mm: 1/2 log(1 + 9) nats, for both touches
+    assert np.allclose(ix, 0.5 * np.log(10.0), atol=0.25)
+    # the touches of one hand add up to at least the better one
+    both = slam_information(smap, [through, off], [0, 0], yaw) - slam_information(smap, [through, off], [0, 0], 0 * yaw)
+    assert both.shape == (1,) and both[0] >= iy[1] - 1e-9
+
+
+def test_pose_lever_shrinks_where_the_normal_cannot_support_it():
+    from touchloc.mapping.slam import pose_jacobian
+
+    r = 0.04
+    x = np.array([r, 0.0, 0.05])
+    sig = np.deg2rad(5.0)
+    radial_ish = np.array([np.cos(np.deg2rad(3.0)), np.sin(np.deg2rad(3.0)), 0.0])
+    tangential = np.array([0.0, 1.0, 0.0])
+    J1 = pose_jacobian(x, radial_ish, sig)
+    J2 = pose_jacobian(x, tangential, sig)
+    # 3 deg off the radius is within a 5 deg normal's noise: no lever about the axis
+    assert J1[5] == 0.0 and np.allclose(J1[:3], radial_ish)
+    # a normal across the radius keeps nearly all of its lever r about the axis
+    assert 0.99 * r < J2[5] <= r
+    assert np.allclose(pose_jacobian(x, tangential, 0.0)[3:], np.cross(x, tangential))
+    # batched
+    assert pose_jacobian(np.tile(x, (4, 2, 1)), np.tile(tangential, (4, 2, 1)), sig).shape == (4, 2, 6)
+
+
+def test_tracked_pose_covariance_sees_what_a_surface_can_show(milk):
+    """Turned about its axis, a can's surface cannot show the turn: the tracked yaw variance
+    grows with the odometry's noise while the translation stays pinned; a milk carton's
+    flat faces show every turn and keep it bounded."""
+    from touchloc.data import load_object
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        can = load_object("can")
+    kw = dict(push=(0.0, 0.0), inhand=True, step=np.deg2rad(15.0))
+    out = {}
+    for name, obj in (("can", can), ("milk", milk)):
+        slam = TactileSLAM(_box(obj, 0.03), motion=(0.0005, np.deg2rad(0.5)),
+                           odometry_noise=(0.0005, np.deg2rad(1.5)), sigma_pos=0.001, sigma_nor=0.087, rng=0)
+        assert np.allclose(slam.pose_covariance(predict=False), 0.0)
+        explore(MovingWorld(obj, rng=0, **kw), _box(obj, 0.06), 30, slam=slam, fingers=3, rng=0)
+        C = slam.pose_covariance(predict=False)
+        assert np.all(np.linalg.eigvalsh(C) > -1e-12)
+        Cp = slam.pose_covariance()
+        assert np.all(np.linalg.eigvalsh(Cp - C) > -1e-12) and np.trace(Cp) > np.trace(C)
+        out[name] = C
+    # 30 turns with 1.5 deg of noise each and nothing to see: up to 8 deg (the can's rims
+    # show a little); the carton's faces hold it at about half that
+    yaw_can = np.degrees(np.sqrt(out["can"][5, 5]))
+    assert 6.0 < yaw_can < 8.3
+    assert np.degrees(np.sqrt(out["milk"][5, 5])) < 0.6 * yaw_can
+    assert np.sqrt(np.max(np.diag(out["can"])[:2])) < 0.002

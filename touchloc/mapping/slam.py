@@ -166,6 +166,7 @@ class TactileSLAM:
         # contacts' own geometry; see pose_covariance
         self._cov = np.zeros((7, 7))
         self._cov[6, 6] = self._SCALE_PRIOR_SD**2 if self.learn_odometry_scale else 0.0
+        self._last_fisher = None
 
     @property
     def pose(self) -> np.ndarray:
@@ -239,6 +240,7 @@ class TactileSLAM:
         H = np.zeros((len(x), 7))
         H[:, :6] = pose_jacobian(x, n, self.map.sigma_nor)
         r = self.map.sigma_pos**2 + self.map.surface_std(np.clip(x, self.map.lo, self.map.hi)) ** 2
+        self._last_fisher = (H[:, 3:6], r)
         S = H @ C @ H.T + np.diag(r)
         K = np.linalg.solve(S, H @ C).T
         C = C - K @ H @ C
@@ -331,11 +333,11 @@ class TactileSLAM:
             lw = np.full(len(P), -np.log(len(P)))
         self.particles, self.log_w = P, lw
         T = self._mean_pose()
-        prior_cov = self._cov
+        self._last_fisher = None
         if sig is not None:
             self._cov = self._update_cov(self._cov, T, results)
         if D is not None and self.learn_odometry_scale:
-            self._learn_scale(D, T, results, prior_cov)
+            self._learn_scale(D, T, results)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -410,8 +412,9 @@ class TactileSLAM:
     _SCALE_RANGE = (0.8, 1.25)
     _SCALE_MIN_CONTACTS = 30
     _SCALE_PRIOR_SD = 0.05
+    _SCALE_MIN_INFO = 0.05
 
-    def _learn_scale(self, D, T, results, prior_cov):
+    def _learn_scale(self, D, T, results):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
 
         The map's correction of the predicted pose, projected on the odometry's turn axis,
@@ -425,14 +428,17 @@ class TactileSLAM:
         n_hit = sum(len(r.contact) for r in results if r.contact is not None)
         if theta < 1e-6 or n_hit < 2 or self.map.n_contacts < self._SCALE_MIN_CONTACTS:
             return
-        # how much of the turn this step's contacts showed (0: none, a surface sliding
-        # along itself; 1: all), from the tracked covariance about the turn's axis
+        # only a step whose contacts show the turn: their Fisher information about it must
+        # be worth a twentieth of one step's odometry noise (a mug's body shows nothing)
+        if self._last_fisher is None:
+            return
+        lever, r = self._last_fisher
         a = self.trajectory[-1][:3, :3].T @ (w / theta)
-        v0, v1 = a @ prior_cov[3:6, 3:6] @ a, a @ self._cov[3:6, 3:6] @ a
-        seen = float(np.clip(1.0 - v1 / v0, 0.0, 1.0)) if v0 > 0 else 1.0
+        if float(np.sum((lever @ a) ** 2 / r)) * self.odometry_noise[1] ** 2 < self._SCALE_MIN_INFO:
+            return
         pred = D @ self.trajectory[-1]
         innov = Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
-        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * seen * innov / theta)
+        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / theta)
         self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
         self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
 
