@@ -277,7 +277,7 @@ def test_pose_information_of_a_touch_follows_its_lever_arm(milk):
     """A contact on a side face fixes a turn about the vertical axis by its offset from the
     axis: a touch through the axis carries no yaw information, one off to the side does;
     both fix the translation across the face alike."""
-    from touchloc.mapping.explore import slam_information
+    from touchloc.mapping.explore import _slam_information
     from touchloc.planners import GuardedTouch
 
     smap = _milk_map(milk)
@@ -290,35 +290,35 @@ def test_pose_information_of_a_touch_follows_its_lever_arm(milk):
     yaw[5, 5] = np.deg2rad(10.0) ** 2
     tx = np.zeros((6, 6))
     tx[0, 0] = 0.003**2
-    none = slam_information(smap, [through, off], [0, 1], np.zeros((6, 6)))
-    iy = slam_information(smap, [through, off], [0, 1], yaw) - none
-    ix = slam_information(smap, [through, off], [0, 1], tx) - none
+    none = _slam_information(smap, [through, off], [0, 1], np.zeros((6, 6)))
+    iy = _slam_information(smap, [through, off], [0, 1], yaw) - none
+    ix = _slam_information(smap, [through, off], [0, 1], tx) - none
     # 11 mm off the axis, 10 deg moves the face by 1.9 mm: about 1/2 log(1 + 1.9^2 / 1.25) nats
     assert iy[0] < 0.05 and 0.3 < iy[1] < 1.0
     # 3 mm across a face measured to 1 mm: 1/2 log(1 + 9) nats, for both touches
     assert np.allclose(ix, 0.5 * np.log(10.0), atol=0.25)
     # the touches of one hand add up to at least the better one
-    both = slam_information(smap, [through, off], [0, 0], yaw) - slam_information(smap, [through, off], [0, 0], 0 * yaw)
+    both = _slam_information(smap, [through, off], [0, 0], yaw) - _slam_information(smap, [through, off], [0, 0], 0 * yaw)
     assert both.shape == (1,) and both[0] >= iy[1] - 1e-9
 
 
 def test_pose_lever_shrinks_where_the_normal_cannot_support_it():
-    from touchloc.mapping.slam import pose_jacobian
+    from touchloc.mapping.slam import _pose_jacobian
 
     r = 0.04
     x = np.array([r, 0.0, 0.05])
     sig = np.deg2rad(5.0)
     radial_ish = np.array([np.cos(np.deg2rad(3.0)), np.sin(np.deg2rad(3.0)), 0.0])
     tangential = np.array([0.0, 1.0, 0.0])
-    J1 = pose_jacobian(x, radial_ish, sig)
-    J2 = pose_jacobian(x, tangential, sig)
+    J1 = _pose_jacobian(x, radial_ish, sig)
+    J2 = _pose_jacobian(x, tangential, sig)
     # 3 deg off the radius is within a 5 deg normal's noise: no lever about the axis
     assert J1[5] == 0.0 and np.allclose(J1[:3], radial_ish)
     # a normal across the radius keeps nearly all of its lever r about the axis
     assert 0.99 * r < J2[5] <= r
-    assert np.allclose(pose_jacobian(x, tangential, 0.0)[3:], np.cross(x, tangential))
+    assert np.allclose(_pose_jacobian(x, tangential, 0.0)[3:], np.cross(x, tangential))
     # batched
-    assert pose_jacobian(np.tile(x, (4, 2, 1)), np.tile(tangential, (4, 2, 1)), sig).shape == (4, 2, 6)
+    assert _pose_jacobian(np.tile(x, (4, 2, 1)), np.tile(tangential, (4, 2, 1)), sig).shape == (4, 2, 6)
 
 
 def test_tracked_pose_covariance_sees_what_a_surface_can_show(milk):

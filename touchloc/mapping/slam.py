@@ -21,9 +21,19 @@ shape together, with one shared map in the object frame and two estimators on it
    error made early, when touches land on surface nobody has touched yet; touches made
    later hold the information to correct it, and the smoother uses it.
 
+Beside the particles, a *pose covariance tracked from the contacts' geometry*
+(:meth:`TactileSLAM.pose_covariance`): it grows by the motion model and shrinks by what
+each contact can show, the lever of the map's normal about each axis, discounted by the
+normal's own uncertainty. It does not share a failure of the particles: a map not yet a
+solid of revolution lends contacts on a mug's body a grip on its turn that the body does
+not have, and the particles shrink in yaw while the true error grows. Before each update
+the particles are spread to at least this covariance, and the explorer plans with it
+(:func:`touchloc.mapping.explore`), so a turn that grows uncertain sends the fingers to
+the feature that shows it.
+
 Optionally, an *odometry scale*: a hand's reported turns are often off by a constant
 factor; the map's correction of each predicted turn, summed with a small gain, estimates
-the factor (see :meth:`TactileSLAM._learn_scale`).
+the factor, from the steps whose contacts show the turn (see :meth:`TactileSLAM._learn_scale`).
 
 Why a filter and a smoother on one shared map: the pose posterior after one contact is far
 from Gaussian (a contact on a face leaves the pose free to slide along it), and a few
@@ -47,7 +57,7 @@ from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
-__all__ = ["TactileSLAM", "MovingWorld", "transform_results", "pose_jacobian"]
+__all__ = ["TactileSLAM", "MovingWorld", "transform_results"]
 
 
 def _as_pose(T, name):
@@ -167,11 +177,17 @@ class TactileSLAM:
         self._cov = np.zeros((7, 7))
         self._cov[6, 6] = self._SCALE_PRIOR_SD**2 if self.learn_odometry_scale else 0.0
         self._last_fisher = None
+        self._unseen_turn = 0.0
 
     @property
     def pose(self) -> np.ndarray:
         """(4, 4) current T_world_object estimate (posterior mean)."""
         return self.trajectory[-1].copy()
+
+    @property
+    def turning(self) -> bool:
+        """True when the last update came with an odometry (a hand moving the object)."""
+        return self._last_odometry is not None
 
     def predicted_pose(self) -> np.ndarray:
         """(4, 4) the pose expected at the next update: the current estimate moved by the
@@ -188,13 +204,15 @@ class TactileSLAM:
         an object point ``x`` moves by ``v + w x x``. The covariance grows by the motion
         model (and, with ``learn_odometry_scale``, by the scale's uncertainty times the
         turn) and shrinks by the Fisher information of each step's contacts: a contact at
-        ``x`` with normal ``n`` fixes ``n . v + (x x n) . w`` to the sensor's noise plus
-        the map's uncertainty there. It is computed from the *measured* normals, so a
-        turn that slides a surface along itself (a solid of revolution about its axis)
-        stays as uncertain as the motion model makes it, however confident the particles
-        are. With ``predict`` it is the covariance at the next update (one more step of
-        the motion model).
+        ``x``, where the map's normal is ``n``, fixes ``n . v + (x x n) . w`` to the
+        sensor's noise plus the map's uncertainty there, with the lever ``x x n`` shrunk
+        by what the normal's own uncertainty can explain. A turn that slides a surface
+        along itself (a solid of revolution about its axis) thus stays as uncertain as
+        the motion model makes it, however confident the particles are (the particles
+        are spread to at least this covariance before each update). With ``predict`` it
+        is the covariance at the next update (one more step of the motion model).
         """
+        predict = as_bool(predict, "predict")
         C = self._cov
         if predict and self._steps:
             sig = self.odometry_noise if self._last_odometry is not None else self.motion
@@ -238,7 +256,7 @@ class TactileSLAM:
             return C
         n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
         H = np.zeros((len(x), 7))
-        H[:, :6] = pose_jacobian(x, n, self.map.sigma_nor)
+        H[:, :6] = _pose_jacobian(x, n, self.map.sigma_nor)
         r = self.map.sigma_pos**2 + self.map.surface_std(np.clip(x, self.map.lo, self.map.hi)) ** 2
         self._last_fisher = (H[:, 3:6], r)
         S = H @ C @ H.T + np.diag(r)
@@ -317,7 +335,8 @@ class TactileSLAM:
         if sig is not None:
             P = _perturb(P, sig[0], sig[1], self.planar, self.rng)
             self._cov = self._predict_cov(self._cov, sig, D)
-            P = self._inflate(P)
+            if D is not None:
+                P = self._inflate(P)
         if self.map.n_contacts > 0:
             ll = self._log_likelihood(P, results)
             lw = self.log_w + ll
@@ -425,6 +444,9 @@ class TactileSLAM:
         """
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
+        # the turn made since the last step that showed one: a correction now is the bias
+        # of all of it, not of this step's turn alone
+        self._unseen_turn += theta
         n_hit = sum(len(r.contact) for r in results if r.contact is not None)
         if theta < 1e-6 or n_hit < 2 or self.map.n_contacts < self._SCALE_MIN_CONTACTS:
             return
@@ -438,7 +460,8 @@ class TactileSLAM:
             return
         pred = D @ self.trajectory[-1]
         innov = Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
-        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / theta)
+        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / self._unseen_turn)
+        self._unseen_turn = 0.0
         self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
         self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
 
@@ -513,7 +536,7 @@ class TactileSLAM:
         return ll
 
 
-def pose_jacobian(x, n, sigma_nor):
+def _pose_jacobian(x, n, sigma_nor):
     """(..., 6) how a contact's offset along the surface normal moves with the pose.
 
     A contact at ``x`` (object frame) on a surface with unit normal ``n`` measures
