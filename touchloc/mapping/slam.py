@@ -27,9 +27,9 @@ each contact can show, the lever of the map's normal about each axis, discounted
 normal's own uncertainty. It does not share a failure of the particles: a map not yet a
 solid of revolution lends contacts on a mug's body a grip on its turn that the body does
 not have, and the particles shrink in yaw while the true error grows. Before each update
-the particles are spread to at least this covariance, and the explorer plans with it
-(:func:`touchloc.mapping.explore`), so a turn that grows uncertain sends the fingers to
-the feature that shows it.
+that comes with an odometry the particles are spread to at least this covariance, and
+the explorer plans with it (:func:`touchloc.mapping.explore`), so that a turn that grows
+uncertain sends the fingers to the feature that shows it.
 
 Optionally, an *odometry scale*: a hand's reported turns are often off by a constant
 factor; the map's correction of each predicted turn, summed with a small gain, estimates
@@ -209,8 +209,9 @@ class TactileSLAM:
         by what the normal's own uncertainty can explain. A turn that slides a surface
         along itself (a solid of revolution about its axis) thus stays as uncertain as
         the motion model makes it, however confident the particles are (the particles
-        are spread to at least this covariance before each update). With ``predict`` it
-        is the covariance at the next update (one more step of the motion model).
+        are spread to at least this covariance before each update with an odometry).
+        With ``predict`` it is the covariance at the next update (one more step of the
+        motion model).
         """
         predict = as_bool(predict, "predict")
         C = self._cov
@@ -336,6 +337,8 @@ class TactileSLAM:
             P = _perturb(P, sig[0], sig[1], self.planar, self.rng)
             self._cov = self._predict_cov(self._cov, sig, D)
             if D is not None:
+                # a commanded motion's error accumulates unseen (a turn's bias on a round
+                # body); a push is re-measured by the touches that follow it
                 P = self._inflate(P)
         if self.map.n_contacts > 0:
             ll = self._log_likelihood(P, results)
