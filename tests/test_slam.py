@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from touchloc.belief import add_s
 from touchloc.errors import ValidationError
@@ -336,7 +337,13 @@ def test_tracked_pose_covariance_sees_what_a_surface_can_show(milk):
         slam = TactileSLAM(_box(obj, 0.03), motion=(0.0005, np.deg2rad(0.5)),
                            odometry_noise=(0.0005, np.deg2rad(1.5)), sigma_pos=0.001, sigma_nor=0.087, rng=0)
         assert np.allclose(slam.pose_covariance(predict=False), 0.0)
-        explore(MovingWorld(obj, rng=0, **kw), _box(obj, 0.06), 30, slam=slam, fingers=3, rng=0)
+        world = MovingWorld(obj, rng=0, **kw)
+        explore(world, _box(obj, 0.06), 30, slam=slam, fingers=3, rng=0)
+        assert slam.turning
+        # the next touch is expected where the last turn, repeated, takes the object
+        D = world.odometry()
+        assert np.isclose(Rotation.from_matrix(D[:3, :3]).magnitude(), np.deg2rad(15.0))
+        assert np.allclose(slam.predicted_pose(), D @ slam.pose, atol=1e-12)
         C = slam.pose_covariance(predict=False)
         assert np.all(np.linalg.eigvalsh(C) > -1e-12)
         Cp = slam.pose_covariance()

@@ -138,6 +138,9 @@ class TactileSLAM:
         ``initial_pose``, then one estimate per update (revised by the smoother).
     map : ShapeMap
         The shape, in the object frame.
+    turning : bool
+        The last update came with an odometry (the hand moves the object); the explorer
+        then seeks pose information too.
     info : dict
         ``dropped`` (contacts outside the box), ``ess`` per update, ``smoothing`` (one
         record per smoother run: pairs, iterations, cost before/after, accepted, the
