@@ -43,12 +43,8 @@ def log_evidence(model, contacts, region: PoseRegion, *, rng=None, **ss_kwargs):
 
 
 #: Scaling Series settings for evidence estimates: identity needs the mass of each
-#: object's likelihood, not a precise pose, so the particle budget is small. Measured
-#: against the earlier (4, 3000) on six candidates, 2 mm / 5 deg contacts, 2 threads:
-#: at 10 contacts 1.36 s against 1.77 s (median of 30 trials on seeds not used to choose
-#: it, all correct, lowest p(true) 1.000); at 5 contacts, on the seeds it was chosen on,
-#: 1.90 s against 2.74 s (18 trials, all correct, lowest p(true) 0.968 against 0.978).
-IDENTIFY_DEFAULTS = dict(m_per_delta=3, max_particles=2000, n_initial=1500)
+#: object's likelihood, not a precise pose, so the particle budget is small.
+IDENTIFY_DEFAULTS = dict(m_per_delta=4, max_particles=3000, n_initial=1500)
 
 
 def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | None = None, rng=None,
