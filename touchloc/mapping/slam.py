@@ -179,7 +179,6 @@ class TactileSLAM:
         # contacts' own geometry; see pose_covariance
         self._cov = np.zeros((7, 7))
         self._cov[6, 6] = self._SCALE_PRIOR_SD**2 if self.learn_odometry_scale else 0.0
-        self._last_fisher = None
         self._unseen_turn = 0.0
 
     @property
@@ -243,10 +242,11 @@ class TactileSLAM:
         return C
 
     def _update_cov(self, C, T, results):
-        """The tracked covariance after this step's contacts (Kalman form, at pose T)."""
+        """The tracked covariance after this step's contacts (Kalman form, at pose T), and the
+        contacts' rotation levers and noise variances (``None`` when nothing was learned)."""
         hits = [r.contact for r in results if r.contact is not None]
         if not hits or self.map.n_contacts == 0:
-            return C
+            return C, None
         c = Contacts.concatenate(hits)
         x = (c.points - T[:3, 3]) @ T[:3, :3]
         # the map's normal there, not the measured one: the map's averages many contacts,
@@ -257,16 +257,15 @@ class TactileSLAM:
         elif c.normals is not None:
             n = c.normals @ T[:3, :3]
         else:
-            return C
+            return C, None
         n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
         H = np.zeros((len(x), 7))
         H[:, :6] = _pose_jacobian(x, n, self.map.sigma_nor)
         r = self.map.sigma_pos**2 + self.map.surface_std(np.clip(x, self.map.lo, self.map.hi)) ** 2
-        self._last_fisher = (H[:, 3:6], r)
         S = H @ C @ H.T + np.diag(r)
         K = np.linalg.solve(S, H @ C).T
         C = C - K @ H @ C
-        return 0.5 * (C + C.T)
+        return 0.5 * (C + C.T), (H[:, 3:6], r)
 
     def _inflate(self, P):
         """Spread the particles, about their mean, to at least the tracked covariance.
@@ -358,11 +357,11 @@ class TactileSLAM:
             lw = np.full(len(P), -np.log(len(P)))
         self.particles, self.log_w = P, lw
         T = self._mean_pose()
-        self._last_fisher = None
+        fisher = None
         if sig is not None:
-            self._cov = self._update_cov(self._cov, T, results)
+            self._cov, fisher = self._update_cov(self._cov, T, results)
         if D is not None and self.learn_odometry_scale:
-            self._learn_scale(D, T, results)
+            self._learn_scale(D, T, results, fisher)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -439,7 +438,7 @@ class TactileSLAM:
     _SCALE_PRIOR_SD = 0.05
     _SCALE_MIN_INFO = 0.05
 
-    def _learn_scale(self, D, T, results):
+    def _learn_scale(self, D, T, results, fisher):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
 
         The map's correction of the predicted pose, projected on the odometry's turn axis,
@@ -458,9 +457,9 @@ class TactileSLAM:
             return
         # only a step whose contacts show the turn: their Fisher information about it must
         # be worth a twentieth of one step's odometry noise (a mug's body shows nothing)
-        if self._last_fisher is None:
+        if fisher is None:
             return
-        lever, r = self._last_fisher
+        lever, r = fisher
         a = self.trajectory[-1][:3, :3].T @ (w / theta)
         if float(np.sum((lever @ a) ** 2 / r)) * self.odometry_noise[1] ** 2 < self._SCALE_MIN_INFO:
             return
