@@ -92,6 +92,8 @@ def test_slam_bad_input(milk):
         TactileSLAM(_box(milk, 0.02), motion=(-1.0, 0.0))
     with pytest.raises(ValidationError):
         TactileSLAM(_box(milk, 0.02), learn_odometry_scale="yes")
+    with pytest.raises(ValidationError):
+        TactileSLAM(_box(milk, 0.02)).pose_covariance(predict="yes")
     slam = TactileSLAM(_box(milk, 0.02))
     reflect = np.diag([1.0, 1.0, -1.0, 1.0])
     with pytest.raises(ValidationError):

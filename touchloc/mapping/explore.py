@@ -230,7 +230,7 @@ def _slam_information(smap: ShapeMap, touches, owner, cov, *, samples: int = 24)
     owner = np.asarray(owner, dtype=np.int64)
     A = int(owner.max()) + 1
     sig2 = smap.sigma_pos**2
-    P, ok, mu, sd, p_in, reach = _ray_samples(smap, touches, samples)
+    P, ok, _, sd, p_in, reach = _ray_samples(smap, touches, samples)
     stop = np.where(ok[:, None], reach * p_in, 0.0)
     shape = np.bincount(owner, weights=(stop * 0.5 * np.log1p(sd * sd / sig2)).sum(axis=1), minlength=A)
     if smap.method != "gpis":
@@ -400,16 +400,13 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
                                   probe_radius=probe_radius)
                 flat = [t for h in cands for t in h.touches]
                 owner = np.repeat(np.arange(len(cands)), fingers)
-            if slam is None:
-                info = np.bincount(owner, weights=ray_information(smap, flat), minlength=len(cands))
+            # a moving object's candidates are scored where the object is expected at the touch
+            scored = flat if slam is None else [r.touch for r in transform_results(
+                [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.predicted_pose()))]
+            if slam is not None and slam.turning:
+                info = _slam_information(smap, scored, owner, slam.pose_covariance())
             else:
-                # scored against the map where the object is expected at the touch
-                scored = [r.touch for r in transform_results(
-                    [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.predicted_pose()))]
-                if slam.turning:
-                    info = _slam_information(smap, scored, owner, slam.pose_covariance())
-                else:
-                    info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
+                info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
             k = int(np.argmax(info))
             action, score = cands[k], float(info[k])
         t1 = time.perf_counter()

@@ -276,8 +276,8 @@ class TactileSLAM:
         turn (the handle) falls outside it. The shortfall is added as random motion.
         """
         w = np.exp(self.log_w - logsumexp(self.log_w))
-        R0 = Rotation.from_matrix(P[:, :3, :3]).mean(weights=w).as_matrix()
-        t0 = w @ P[:, :3, 3]
+        T0 = self._mean_pose(P)
+        R0, t0 = T0[:3, :3], T0[:3, 3]
         xi = np.concatenate([(P[:, :3, 3] - t0) @ R0,
                              Rotation.from_matrix(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
         m = w @ xi
@@ -292,11 +292,13 @@ class TactileSLAM:
         out[:, :3, :3] = P[:, :3, :3] @ Rotation.from_rotvec(E[:, 3:]).as_matrix()
         return out
 
-    def _mean_pose(self):
+    def _mean_pose(self, P=None):
+        """Weighted mean of the particles ``P`` (default: the current ones) under ``log_w``."""
+        P = self.particles if P is None else P
         w = np.exp(self.log_w - logsumexp(self.log_w))
         T = np.eye(4)
-        T[:3, 3] = w @ self.particles[:, :3, 3]
-        T[:3, :3] = Rotation.from_matrix(self.particles[:, :3, :3]).mean(weights=w).as_matrix()
+        T[:3, 3] = w @ P[:, :3, 3]
+        T[:3, :3] = Rotation.from_matrix(P[:, :3, :3]).mean(weights=w).as_matrix()
         return T
 
     def update(self, results, odometry=None) -> np.ndarray:
@@ -445,7 +447,11 @@ class TactileSLAM:
         is an innovation; a biased odometry makes it consistently one-signed, and its sum
         (an integral term, with a small gain) converges to the scale that makes it zero on
         average. Guards: only with a map of some size and at least two contacts in the
-        step (one contact hardly fixes a turn), a small gain, and a clipped range.
+        step (one contact hardly fixes a turn), only from a step whose contacts show the
+        turn (``fisher``: their rotation levers and noise variances, from
+        :meth:`_update_cov`; a mug's body shows nothing), a small gain, and a clipped
+        range. A correction counts against all the turn made since the last step that
+        showed one, not this step's alone.
         """
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
