@@ -65,6 +65,11 @@ def test_compare_dnf_on_the_emulated_hand(capsys):
     out = capsys.readouterr().out
     assert rc == 0 and "1 data sets: 6-gon x 1" in out
     assert "| 6-gon (6 sides) | DNF, corrected |" in out and "| 6-gon (6 sides) | particle filter |" in out
+    from touchloc.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="min_width"):
+        run(["compare-dnf", "--source", "emulator", "--objects", "6-gon", "--datasets", "1", "--turns", "0.5",
+             "--min-width", "-2", "--no-plots"])
 
 
 def test_compare_dnf_adds_the_mapped_family(capsys):

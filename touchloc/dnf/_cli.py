@@ -26,6 +26,9 @@ def register(sub) -> None:
                    help="where the normals come from: the rotation generator (default) or the emulated hand's "
                         "DSACON32m frames (blobs -> curved-pad normals; slower, a few seconds per data set)")
     p.add_argument("--turns", type=float, default=4.0, help="turns per emulated data set (default 4)")
+    p.add_argument("--min-width", type=float, default=8.0, metavar="MM",
+                   help="emulator: keep blobs at least this wide across the finger, mm (flat sides; "
+                        "corners touch along one texel column); 0 keeps every blob (default 8)")
     p.add_argument("--mapped", action="store_true",
                    help="add the third family: the n-gon mapped in 3-D by tactile SLAM (seconds per data set; "
                         "simulated data only)")
@@ -85,8 +88,9 @@ def run_compare(args) -> int:
         bad = [o for o in args.objects if o not in OBJECTS]
         if bad:
             raise ValidationError(f"unknown objects {bad}, expected some of {list(OBJECTS)}")
+        width = args.min_width * 1e-3 if args.min_width != 0 else None
         sets = {o: [emulated_rotation(OBJECTS[o], turns=args.turns, rng=np.random.default_rng([args.seed, i]),
-                                       name=f"{o} #{i + 1}")
+                                       min_width=width, name=f"{o} #{i + 1}")
                     for i in range(args.datasets)] for o in args.objects}
     if sets is None:
         sets = standard_datasets(args.objects, args.datasets, seed=args.seed, **knobs)

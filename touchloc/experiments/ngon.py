@@ -288,7 +288,7 @@ class MappedPrismEstimator:
 def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.018, step: float = np.radians(4.0),
                       stroke=(np.radians(25.0), np.radians(40.0)), under_estimate: float = 0.06, depth: float = 0.0008,
                       slip_std: float = 0.0, pad_radius: float = 0.02, rate_hz: float = 2.5,
-                      name: str = "", rng=None):
+                      min_width: float | None = 0.008, name: str = "", rng=None):
     """Record seed 000's rotation experiment from the emulated hand's tactile bytes.
 
     An extruded n-gon (a round cylinder for 0) stands on the hand's axis between the three
@@ -301,13 +301,18 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
     :class:`~touchloc.hardware.emulator.DSACON32mEmulator` renders the pads' pressure
     into bytes, the :class:`~touchloc.hardware.DSACON32m` driver reads them over a
     loopback TCP socket, and :func:`frame_normal_angles` turns the frame into world-frame
-    normal angles about the axis. The odometry is the hand's turn under-estimated by
+    normal angles about the axis, keeping only blobs at least ``min_width`` wide across the
+    finger: flat sides, not corners. The odometry is the hand's turn under-estimated by
     ``under_estimate`` (seed 000, II-B).
 
     A finger that lands on a side keeps the side's normal through the stroke (it turns
-    with the object); one that lands on a corner rocks on it. On a round cylinder the
-    fingers, turning with the object, also keep their normal through a stroke, so the
-    round object looks like a many-sided one to this set-up.
+    with the object); one that lands on a corner keeps the normal of the pad where the
+    corner landed, which says nothing about the sides, through the stroke as well. A corner
+    touches the pad along a line (one texel column) and a side along a strip (three), so
+    the width filter drops the corners. On a round cylinder the fingers, turning with the
+    object, also keep their normal through a stroke, so it would look like a many-sided
+    object to this set-up; its contact strip (about 8 mm at the default size) is narrower
+    than a side's, and the default filter drops it: the tracker then sees no flat side.
 
     Parameters
     ----------
@@ -332,6 +337,9 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
         in :func:`frame_normal_angles`.
     rate_hz : float
         Sampling rate (for the time stamps).
+    min_width : float or None
+        Narrowest blob kept, m across the finger (see :func:`frame_normal_angles`); None
+        keeps every blob, corners included.
     name : str
     rng : None, int or numpy Generator
 
@@ -345,7 +353,7 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
 
     from .._util import as_rng
     from ..dnf.data import RotationDataset
-    from ..hardware.dnf_features import CurvedPadKinematics, frame_normal_angles
+    from ..hardware.dnf_features import CurvedPadKinematics, check_min_width, frame_normal_angles
     from ..hardware.dsacon import DSACON32m
     from ..hardware.emulator import DSACON32mEmulator, SimWorld, TCPServer
     from ..models import MeshObject
@@ -365,6 +373,7 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
         raise ValidationError(f"stroke must be (lo, hi) rad with 0 < lo <= hi < pi, got {stroke!r}")
     if not (np.isfinite(under_estimate) and -0.5 < under_estimate < 0.5):
         raise ValidationError(f"under_estimate must be in (-0.5, 0.5), got {under_estimate!r}")
+    check_min_width(min_width)
     rng = as_rng(rng)
     th = np.radians(4.0)
     angles = np.array([np.radians(60.0), th, -th, th, -th, th, -th])
@@ -391,7 +400,7 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
                 state["world"] = SimWorld(obj, _rz(theta, z), H, kinematics=kin)
                 frame = dev.read_frame()
                 a, _ = frame_normal_angles(frame, grasp, axis=[0.0, 0.0, 1.0], reference=[1.0, 0.0, 0.0],
-                                           pad_radius=pad_radius, hand_pose=H)
+                                           pad_radius=pad_radius, hand_pose=H, min_width=min_width)
                 seqs.append(a)
                 odo.append(est)
                 truth.append(theta)

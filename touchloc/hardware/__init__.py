@@ -16,7 +16,7 @@ _NAMES = {
     "session": ("SessionLog", "SessionRecord", "TornRecordWarning", "check_session", "read_session",
         "repair_session", "replay", "session_contacts"),
     "tactile": ("Blob", "blobs_to_contacts", "find_blobs", "frame_to_contacts"),
-    "dnf_features": ("blob_normals", "frame_normal_angles", "rotation_plane_angles"),
+    "dnf_features": ("blob_normals", "blob_widths", "frame_normal_angles", "rotation_plane_angles"),
 }
 
 __all__ = [

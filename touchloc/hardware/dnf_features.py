@@ -12,6 +12,15 @@ The pads of the SDH-2 are curved across the finger. :class:`SDH2Kinematics` mode
 as flat (one normal per pad); with ``pad_radius`` the normal at a centroid is tilted about
 the link direction by the centroid's distance from the pad's centre line over the radius,
 so two blobs on one pad give two normals, as on the real sensor.
+
+Flat sides and corners. Seed 000 (section II) keeps the blobs' second moments as a
+curvature feature. On a pad curved across the finger the width of a blob across the
+finger tells the two apart: a flat side pressed ``d`` into a pad of radius ``R`` touches
+it along a strip about ``2 sqrt(2 R d)`` wide (11 mm at 0.8 mm on 20 mm), while a corner or
+edge parallel to the finger touches it along a line, one texel column wide.
+``frame_normal_angles(..., min_width=...)`` drops the narrow blobs (:func:`blob_widths`).
+The seed found the moments too distorted by shear on its hardware to help; the emulator
+has no shear, so how well the cue holds on a real pad is still to be measured.
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ from ..errors import ValidationError
 from .kinematics import SDH2Kinematics
 from .tactile import find_blobs
 
-__all__ = ["rotation_plane_angles", "blob_normals", "frame_normal_angles", "CurvedPadKinematics"]
+__all__ = ["rotation_plane_angles", "blob_normals", "blob_widths", "frame_normal_angles", "CurvedPadKinematics"]
 
 
 def _unit(v, name):
@@ -102,9 +111,33 @@ def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad
     return out
 
 
+def check_min_width(min_width) -> None:
+    """Raise :class:`ValidationError` unless ``min_width`` is None or a width in [0, 0.1) m."""
+    ok = min_width is None or (isinstance(min_width, (int, float, np.floating, np.integer))
+                               and not isinstance(min_width, (bool, np.bool_))
+                               and bool(np.isfinite(min_width)) and 0 <= min_width < 0.1)
+    if not ok:
+        raise ValidationError(f"min_width must be None or a width in [0, 0.1) m, got {min_width!r}")
+
+
+def blob_widths(blobs, kinematics: SDH2Kinematics | None = None) -> np.ndarray:
+    """Width of each blob across its finger, m, (K,).
+
+    The width of a uniform strip with the blob's pressure-weighted variance across the
+    finger: ``texel_width * sqrt(12 var + 1)``, where ``var`` is in texels squared. One
+    texel column gives one texel width (3.4 mm), three columns about three.
+    """
+    if not blobs:
+        return np.zeros(0)
+    kin = kinematics or SDH2Kinematics()
+    var = np.array([max(float(b.covariance[0, 0]), 0.0) for b in blobs])
+    pitch = np.array([kin.pads[b.matrix].texel_width for b in blobs])
+    return pitch * np.sqrt(12.0 * var + 1.0)
+
+
 def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinematics | None = None,
                         threshold: int = 100, min_texels: int = 1, pad_radius: float | None = 0.02,
-                        hand_pose=None, min_in_plane: float = 0.3):
+                        hand_pose=None, min_in_plane: float = 0.3, min_width: float | None = None):
     """One tactile frame to the DNF tracker's input: normal angles in the rotation plane.
 
     Parameters
@@ -124,6 +157,11 @@ def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinem
         T_world_hand.
     min_in_plane : float
         See :func:`rotation_plane_angles`.
+    min_width : float or None
+        Drop blobs narrower than this across the finger (m, :func:`blob_widths`): line
+        contacts on corners and edges, whose normal is the pad's wherever the corner
+        landed rather than a side's. None keeps every blob. About 8 mm (between one and
+        three 3.4 mm texel columns) for the SDH-2's pads pressed 0.5-1 mm into flat sides.
 
     Returns
     -------
@@ -133,8 +171,11 @@ def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinem
     finger : (K,) int
         The finger (0, 1, 2) of each angle.
     """
+    check_min_width(min_width)
     blobs = find_blobs(frame, angles, kinematics, threshold=threshold, min_texels=min_texels,
                        hand_pose=hand_pose)
+    if min_width is not None and blobs:
+        blobs = [b for b, w in zip(blobs, blob_widths(blobs, kinematics)) if w >= min_width]
     normals = blob_normals(blobs, angles, kinematics, pad_radius=pad_radius, hand_pose=hand_pose)
     ang, keep = rotation_plane_angles(normals, axis, reference, min_in_plane=min_in_plane)
     finger = np.array([b.matrix // 2 for b in blobs], dtype=np.int64)[keep] if blobs else np.zeros(0, np.int64)
