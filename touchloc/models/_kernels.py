@@ -33,6 +33,11 @@ _STACK = 128
 # cache=: compiled code kept on disk when numba has a writable place for it (see touchloc._cache)
 _NB = dict(cache=numba_cache_enabled(__file__), fastmath=False, nogil=True)
 
+#: The one-thread kernels are compiled with numba's parallel pipeline too, over a plain
+#: ``range``: the same loop compiled without it ran 1.9-2.3x slower on one core (measured on
+#: the pose-cost kernel, numba 0.6x, 2026-11-26; docs/benchmarks.md, "Measurement model").
+_SERIAL = dict(_NB, parallel=True)
+
 #: Below this many queries the kernels run on one thread: starting the thread pool costs
 #: more than it saves (and much more on a loaded machine).
 PARALLEL_MIN = 4096
@@ -324,7 +329,7 @@ def _bvh_query(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w,
     return face, cost, closest
 
 
-@nb.njit(**_NB)
+@nb.njit(**_SERIAL)
 def _bvh_query_serial(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n):
     Q = P.shape[0]
     cost = np.empty(Q)
@@ -441,7 +446,7 @@ def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
     return face, cost
 
 
-@nb.njit(**_NB)
+@nb.njit(**_SERIAL)
 def _grid_query_serial(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
     Q = P.shape[0]
@@ -675,7 +680,7 @@ def _pose_costs(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, 
     return out, done
 
 
-@nb.njit(**_NB)
+@nb.njit(**_SERIAL)
 def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off,
                        adj, plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
