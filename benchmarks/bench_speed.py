@@ -75,7 +75,18 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         'cut 5-contact CPU time 2.2x with 38 of 42 localised against 36 of 42, and was level '
         'at 10 and 30 contacts (section "Scaling Series\' particle cap"); it accounts for '
         'most of the step from the earlier rows of this table to these.'
-        ' Against the tree just before this step (commit 666723a, `TOUCHLOC_BENCH_BASELINE=666723a python benchmarks/bench_speed.py --quick`, same workers, load average 11-22 on 2 cores): mug 1.4x at 5 and at 10 contacts, 1.1x at 30, can 1.1x at 10 contacts, `identify` 1.6x.')
+        ' Against the tree just before this step (commit 666723a, `TOUCHLOC_BENCH_BASELINE=666723a python benchmarks/bench_speed.py --quick`, same workers, load average 11-22 on 2 cores): mug 1.4x at 5 and at 10 contacts, 1.1x at 30, can 1.1x at 10 contacts, `identify` 1.6x.'
+        '\n\nThe latest step: calls below 4096 pose-contact pairs run a one-thread kernel (the '
+        'thread pool waits for a time slice on a loaded machine: with one busy process on the '
+        'other core, 1000 pairs took 8 ms on two threads against 0.9 ms on one). That kernel, '
+        'compiled without numba\'s parallel pipeline, ran the same loop 2.1x slower than the '
+        'parallel kernel on one thread (400 mug poses x 10 contacts: 8.3 against 3.7 ms); it is '
+        'now compiled with the pipeline over a plain `range` (4.0 ms). In `identify` these calls '
+        'took a third of the time. Against the tree just before this step (commit 21b6239, '
+        '`TOUCHLOC_BENCH_BASELINE=21b6239 python benchmarks/bench_speed.py`, load average 1.5): '
+        '`identify` 1.1-1.2x on all six objects (median 1.53 s, longest 1.94 s, against 1.78 and '
+        '2.14 s), localisation 1.0-1.4x (median of per-trial ratios per row), 1.1-2.1x with the '
+        'posterior stage off.')
 HELD_OUT = ["can", "lemon", "bread", "cereal"]
 
 

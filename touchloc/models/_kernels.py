@@ -34,8 +34,9 @@ _STACK = 128
 _NB = dict(cache=numba_cache_enabled(__file__), fastmath=False, nogil=True)
 
 #: The one-thread kernels are compiled with numba's parallel pipeline too, over a plain
-#: ``range``: the same loop compiled without it ran 1.9-2.3x slower on one core (measured on
-#: the pose-cost kernel, numba 0.6x, 2026-11-26; docs/benchmarks.md, "Measurement model").
+#: ``range``: the same loop compiled without it ran 1.9-2.3x slower on one core (the pose-cost
+#: kernel, 100-8000 pose-contact pairs on the mug, numba 0.68; docs/benchmarks.md, "Localisation
+#: speed with few contacts").
 _SERIAL = dict(_NB, parallel=True)
 
 #: Below this many queries the kernels run on one thread: starting the thread pool costs
