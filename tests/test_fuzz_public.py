@@ -14,6 +14,7 @@ succeed (so each hostile value meets a call that would otherwise work), hypothes
 
 from __future__ import annotations
 
+import enum
 import importlib
 import inspect
 import math
@@ -31,7 +32,7 @@ from hypothesis import strategies as st  # noqa: E402
 from touchloc.errors import TouchlocError  # noqa: E402
 
 MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping",
-           "touchloc.recognition", "touchloc.experiments"]
+           "touchloc.recognition", "touchloc.experiments", "touchloc.hardware"]
 N_EXAMPLES = 30        # hostile calls per public callable
 TIME_LIMIT = 3.0       # seconds per call: beyond it the call counts as a hang
 
@@ -141,8 +142,8 @@ def public_callables():
         mod = importlib.import_module(modname)
         for name in mod.__all__:
             obj = getattr(mod, name)
-            if not callable(obj) or (inspect.isclass(obj) and issubclass(obj, BaseException)):
-                continue
+            if not callable(obj) or (inspect.isclass(obj) and issubclass(obj, (BaseException, enum.Enum))):
+                continue   # exceptions, and enumerations (looked up by value, not called)
             try:
                 sig = inspect.signature(obj)
             except (TypeError, ValueError):
@@ -287,6 +288,46 @@ def _experiment_args(w):
     return w["experiments"]
 
 
+def _hardware_args(w):
+    """Ordinary values for the hardware names: drivers on a loopback port (not connected),
+    a frame with one blob per distal pad, and the records and structures built from them."""
+    import serial
+
+    from touchloc import hardware as hw
+
+    if "hardware" not in w:
+        kin = hw.SDH2Kinematics()
+        mats = [np.zeros((p.cells_y, p.cells_x)) for p in kin.pads]
+        for m in (1, 3, 5):
+            mats[m][5:8, 2:5] = 800.0
+        angles = np.radians([60.0, 4, -4, 4, -4, 4, -4])
+        blobs = hw.find_blobs(mats, angles, kin)
+        port = serial.serial_for_url("loop://", timeout=0.05)
+        hand = hw.SDH2(port, connect=False, timeout=0.1)
+        tactile = hw.DSACON32m(serial.serial_for_url("loop://", timeout=0.05), connect=False, timeout=0.1,
+                               open_timeout=0.1, retries=1)
+        executor = hw.GuardedTouchExecutor(hand, tactile, kinematics=kin)
+        result = w["results"][0]
+        with hw.SessionLog("fuzz-read.jsonl") as log:
+            log.append(result, finger=1, angles=angles)
+        w["hardware"] = dict(
+            port=port, connect=False, timeout=0.1, open_timeout=0.1, retries=1, frame=mats, angles=angles,
+            kinematics=kin, blobs=blobs, hand=hand, tactile=tactile, executor=executor, result=result,
+            path_or_records=[hw.SessionRecord(result)], estimator=len, path="fuzz-session.jsonl",
+            data=b"123456789", crc=0xFFFF, cmd=5, payload=b"\x01\x02", shapes=[(2, 2)], values=[1, 2, 3],
+            cells_x=6, cells_y=13, axis=(0.0, 0.0, 1.0), reference=(1.0, 0.0, 0.0), normals=np.eye(3),
+            region=None)
+    return w["hardware"]
+
+
+def _decode_args(w):
+    from touchloc.hardware import encode_rle
+
+    raw = np.array([1, 2, 3, 4], dtype="<u2").tobytes()
+    return {**_hardware_args(w), "data": encode_rle([1, 1, 2, 3]), "n": 4,
+            "payload": bytes(5) + raw, "shapes": [(2, 2)]}
+
+
 def _classifier(split):
     from touchloc.recognition import NearestNeighbourClassifier
 
@@ -331,6 +372,16 @@ for _name in ("ShapeMap", "TactileSLAM", "transform_results", "explore", "ray_in
 CHEAP["mapping.fit_superquadric"] = _mapping_args
 for _name in ("run_trial", "run_sweep", "read_results", "summarize", "trial_id"):
     CHEAP[f"experiments.{_name}"] = _experiment_args
+
+for _name in ("SDH2", "DSACON32m", "PacketParser", "crc16", "encode_packet", "encode_rle", "SDH2Kinematics",
+              "PadLayout", "find_blobs", "frame_to_contacts", "blobs_to_contacts", "GuardedTouchExecutor",
+              "HandWorld", "SessionLog", "SessionRecord", "session_contacts", "replay", "blob_normals",
+              "blob_widths", "frame_normal_angles", "rotation_plane_angles"):
+    CHEAP[f"hardware.{_name}"] = _hardware_args
+for _name in ("check_session", "read_session", "repair_session"):
+    CHEAP[f"hardware.{_name}"] = lambda w: {**_hardware_args(w), "path": "fuzz-read.jsonl"}
+CHEAP["hardware.decode_rle"] = _decode_args
+CHEAP["hardware.decode_frame"] = _decode_args
 
 #: callables left out of the sampled suite (none at present), with the reason
 TOO_SLOW: dict = {}

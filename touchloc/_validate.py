@@ -280,6 +280,13 @@ def as_path(x, name: str = "path", *, must_exist: bool = True, kind: str = "file
     return p
 
 
+def as_bytes(x, name: str) -> bytes:
+    """Bytes from bytes, bytearray or memoryview (not a str, a number or a list)."""
+    if isinstance(x, (bytes, bytearray, memoryview)):
+        return bytes(x)
+    raise ValidationError(f"{name} must be bytes, got {type(x).__name__} {_describe(x)}")
+
+
 def as_bool(x, name: str) -> bool:
     """A flag: bool, numpy bool, or the integers 0 and 1."""
     if isinstance(x, (bool, np.bool_)):

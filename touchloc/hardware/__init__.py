@@ -27,6 +27,8 @@ __all__ = [
     # geometry and contacts
     "SDH2Kinematics", "PadLayout", "DEFAULT_PADS", "FINGER_AXES",
     "Blob", "find_blobs", "frame_to_contacts", "blobs_to_contacts",
+    # tactile frames to the DNF tracker's input
+    "blob_normals", "blob_widths", "frame_normal_angles", "rotation_plane_angles",
     # touches and their log
     "GuardedTouchExecutor", "TouchPlan", "TouchAborted", "HandWorld",
     "SessionLog", "SessionRecord", "read_session", "session_contacts", "replay",

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_float, as_float_array, as_instance, as_pose, as_positive_float, as_sequence
 from ..errors import ValidationError
 from .kinematics import SDH2Kinematics
 from .tactile import find_blobs
@@ -35,8 +36,8 @@ __all__ = ["rotation_plane_angles", "blob_normals", "blob_widths", "frame_normal
 
 
 def _unit(v, name):
-    v = np.asarray(v, dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+    v = as_float_array(v, name, shape=(3,), expected="a finite non-zero (3,) vector")
+    if np.linalg.norm(v) < 1e-9:
         raise ValidationError(f"{name} must be a finite non-zero (3,) vector, got {v!r}")
     return v / np.linalg.norm(v)
 
@@ -73,7 +74,14 @@ def rotation_plane_angles(normals, axis, reference, *, min_in_plane: float = 0.3
     keep : (K,) bool
         Which normals were used.
     """
-    n = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    n = as_float_array(normals, "normals", expected="a (K, 3) array of finite normals")
+    if n.size == 0:
+        n = n.reshape(0, 3)
+    if n.ndim == 1 and n.shape == (3,):
+        n = n[None]
+    if n.ndim != 2 or n.shape[1] != 3:
+        raise ValidationError(f"normals must be a (K, 3) array, got shape {n.shape}")
+    min_in_plane = as_float(min_in_plane, "min_in_plane", low=0.0, high=1.0)
     a, e1, e2 = _plane(axis, reference)
     x, y = n @ e1, n @ e2
     length = np.linalg.norm(n, axis=1)
@@ -90,15 +98,17 @@ def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad
     ``d / pad_radius`` rad about the link. Without it each blob gets its pad's flat normal
     (:attr:`Blob.normal`).
     """
+    blobs = _check_blobs(blobs)
+    kin = as_instance(kinematics, SDH2Kinematics, "kinematics", allow_none=True) or SDH2Kinematics()
+    angles = kin._angles(angles)
+    if pad_radius is not None:
+        pad_radius = as_positive_float(pad_radius, "pad_radius (m)", high=1.0)
+    T = None if hand_pose is None else as_pose(hand_pose, "hand_pose")
     if not blobs:
         return np.zeros((0, 3))
     base = np.stack([b.normal for b in blobs])
     if pad_radius is None:
         return base
-    if not (np.isfinite(pad_radius) and pad_radius > 0):
-        raise ValidationError(f"pad_radius must be a positive length in m, got {pad_radius!r}")
-    kin = kinematics or SDH2Kinematics()
-    T = None if hand_pose is None else np.asarray(hand_pose, dtype=np.float64)
     out = np.empty_like(base)
     for i, b in enumerate(blobs):
         pad = kin.pads[b.matrix]
@@ -109,6 +119,12 @@ def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad
         v = -(np.cos(phi) * n_pad + np.sin(phi) * k)
         out[i] = v if T is None else T[:3, :3] @ v
     return out
+
+
+def _check_blobs(blobs) -> list:
+    from .tactile import Blob
+
+    return as_sequence(blobs, "blobs", of=Blob, expected="a list of Blob (from find_blobs)")
 
 
 def check_min_width(min_width) -> None:
@@ -127,9 +143,10 @@ def blob_widths(blobs, kinematics: SDH2Kinematics | None = None) -> np.ndarray:
     finger: ``texel_width * sqrt(12 var + 1)``, where ``var`` is in texels squared. One
     texel column gives one texel width (3.4 mm), three columns about three.
     """
+    blobs = _check_blobs(blobs)
+    kin = as_instance(kinematics, SDH2Kinematics, "kinematics", allow_none=True) or SDH2Kinematics()
     if not blobs:
         return np.zeros(0)
-    kin = kinematics or SDH2Kinematics()
     var = np.array([max(float(b.covariance[0, 0]), 0.0) for b in blobs])
     pitch = np.array([kin.pads[b.matrix].texel_width for b in blobs])
     return pitch * np.sqrt(12.0 * var + 1.0)

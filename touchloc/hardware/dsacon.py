@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import (ChecksumError, FirmwareError, HardwareError, HardwareTimeout, ProtocolError, TouchlocError,
                       ValidationError)
-from .._validate import as_count, as_probability, as_timeout
+from .._validate import as_bool, as_bytes, as_count, as_float_array, as_probability, as_sequence, as_timeout
 from ._transport import Link, as_link
 
 __all__ = [
@@ -84,17 +84,18 @@ def crc16(data, crc: int = 0xFFFF) -> int:
     >>> hex(crc16(b"123456789"))
     '0x6eb4'
     """
+    data = as_bytes(data, "data")
+    crc = as_count(crc, "crc", min=0, max=0xFFFF)
     t = _CRC_TABLE
-    for b in bytes(data):
+    for b in data:
         crc = (crc >> 8) ^ t[(crc ^ b) & 0xFF]
     return crc
 
 
 def encode_packet(cmd: int, payload: bytes = b"") -> bytes:
     """One packet: preamble, id, length, payload and (when the payload is not empty) the CRC."""
-    if not 0 <= int(cmd) <= 0xFF:
-        raise ValidationError(f"packet id must be 0..255, got {cmd}")
-    payload = bytes(payload)
+    cmd = as_count(cmd, "packet id", min=0, max=0xFF)
+    payload = as_bytes(payload, "payload")
     if len(payload) > 0xFFFF:
         raise ValidationError(f"payload must be at most 65535 bytes, got {len(payload)}")
     head = struct.pack("<BH", cmd, len(payload))
@@ -119,7 +120,7 @@ class PacketParser:
     """
 
     def __init__(self, max_payload: int = 16384):
-        self.max_payload = int(max_payload)
+        self.max_payload = as_count(max_payload, "max_payload", max=0xFFFF, why="the length field's range")
         self.buf = bytearray()
         self.skipped = 0
 
@@ -185,9 +186,11 @@ def decode_rle(data, n: int) -> np.ndarray:
     Raises :class:`ProtocolError` on an odd byte count, a zero count or a total other
     than ``n``.
     """
+    data = as_bytes(data, "data")
+    n = as_count(n, "n", min=0, max=10**7, why="texels of a frame")
     if len(data) % 2:
         raise ProtocolError(f"RLE data must be whole u16 units, got {len(data)} bytes")
-    u = np.frombuffer(bytes(data), dtype="<u2")
+    u = np.frombuffer(data, dtype="<u2")
     counts = (u >> 12).astype(np.int64)
     if counts.size and counts.min() == 0:
         raise ProtocolError(f"RLE unit {int(np.argmin(counts))} has a repeat count of 0 (expected 1..15)")
@@ -199,9 +202,10 @@ def decode_rle(data, n: int) -> np.ndarray:
 
 def encode_rle(values) -> bytes:
     """Encode 12-bit texel values as RLE units (runs of up to 15)."""
-    v = np.asarray(values, dtype=np.int64).reshape(-1)
-    if v.size and (v.min() < 0 or v.max() > 0x0FFF):
-        raise ValidationError("texel values must lie in 0..4095 for RLE")
+    f = as_float_array(values, "values", expected="12-bit texel values").reshape(-1)
+    if f.size and (f.min() < 0 or f.max() > 0x0FFF or np.any(f != np.floor(f))):
+        raise ValidationError("texel values must be integers in 0..4095 for RLE")
+    v = f.astype(np.int64)
     if v.size == 0:
         return b""
     change = np.flatnonzero(np.diff(v)) + 1
@@ -247,11 +251,13 @@ class TactileFrame:
 
 def decode_frame(payload: bytes, shapes) -> TactileFrame:
     """Decode a frame packet's payload for matrices of the given (cells_y, cells_x) shapes."""
+    payload = as_bytes(payload, "payload")
+    shapes = _check_shapes(shapes)
     if len(payload) < 5:
         raise ProtocolError(f"frame payload must hold at least 5 bytes (timestamp, flags), got {len(payload)}")
     ts, flags = struct.unpack_from("<IB", payload)
     data = payload[5:]
-    n = int(sum(int(a) * int(b) for a, b in shapes))
+    n = int(sum(a * b for a, b in shapes))
     if flags & 1:
         tex = decode_rle(data, n)
     else:
@@ -264,6 +270,16 @@ def decode_frame(payload: bytes, shapes) -> TactileFrame:
         mats.append(tex[i:i + cy * cx].reshape(cy, cx))
         i += cy * cx
     return TactileFrame(int(ts), int(flags), tex, tuple(mats))
+
+
+def _check_shapes(shapes) -> list:
+    """Matrix shapes as a list of (cells_y, cells_x) positive ints."""
+    out = []
+    for i, s in enumerate(as_sequence(shapes, "shapes", min_len=1, max_len=64,
+                                      expected="a list of (cells_y, cells_x) pairs")):
+        pair = as_sequence(s, f"shapes[{i}]", min_len=2, max_len=2, expected="a (cells_y, cells_x) pair")
+        out.append(tuple(as_count(v, f"shapes[{i}]", max=256, why="texels of one pad") for v in pair))
+    return out
 
 
 @dataclass(frozen=True)
@@ -388,6 +404,7 @@ class DSACON32m:
         if timeout <= 0:
             raise ValidationError(f"timeout must be a positive number of seconds, got {timeout!r}")
         open_timeout = as_timeout(open_timeout, "open_timeout")
+        connect = as_bool(connect, "connect")
         retries = as_count(retries, "retries", max=100)
         max_skip = as_count(max_skip, "max_skip", min=0)
         max_packets = as_count(max_packets, "max_packets", min=0)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_count, as_pose, as_positive_float, as_timeout
+from .._validate import as_bool, as_count, as_float_array, as_instance, as_pose, as_positive_float, as_timeout
 from ..errors import HardwareError, TouchlocError, ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, HandTouch, TouchResult
@@ -97,8 +97,14 @@ class GuardedTouchExecutor:
                  threshold: int = 200, step: float = 0.002, speed: float = math.radians(60),
                  rest_angles=None, log=None, move_timeout: float = 5.0, retreat: bool = True,
                  mode: str = "steps", probe_speed: float = 0.02):
+        missing = [m for m in ("actual_angles", "move", "stop", "wait_until_idle") if not hasattr(hand, m)]
+        if missing:
+            raise ValidationError(f"hand must be an SDH2 (or have {', '.join(missing)}), got {type(hand).__name__}")
+        if not callable(getattr(tactile, "read_frame", None)):
+            raise ValidationError(f"tactile must be a DSACON32m (or have read_frame()), got {type(tactile).__name__}")
         self.hand = hand
         self.tactile = tactile
+        kinematics = as_instance(kinematics, SDH2Kinematics, "kinematics", allow_none=True)
         if kinematics is None:
             kinematics = SDH2Kinematics()
             infos = getattr(tactile, "matrix_infos", None)
@@ -114,17 +120,12 @@ class GuardedTouchExecutor:
         if rest_angles is None:
             rest = np.radians([0.0, -30, 30, -30, 30, -30, 30])
         else:
-            try:
-                rest = np.asarray(rest_angles, float)
-            except (TypeError, ValueError):
-                rest = np.zeros(0)
-        if rest.shape != (7,) or not np.all(np.isfinite(rest)):
-            raise ValidationError(f"rest_angles must be 7 joint angles (rad), got {rest.shape}")
+            rest = as_float_array(rest_angles, "rest_angles", shape=(7,), expected="7 finite joint angles (rad)")
         self.rest_angles = rest
         self.log = SessionLog(log) if log is not None and not isinstance(log, SessionLog) else log
         self.move_timeout = as_timeout(move_timeout, "move_timeout")
-        self.retreat = bool(retreat)
-        if mode not in ("steps", "velocity"):
+        self.retreat = as_bool(retreat, "retreat")
+        if not isinstance(mode, str) or mode not in ("steps", "velocity"):
             raise ValidationError(f"mode must be 'steps' or 'velocity', got {mode!r}")
         self.mode = mode
         self.probe_speed = as_positive_float(probe_speed, "probe_speed (m/s)")
@@ -401,8 +402,8 @@ class HandWorld:
     """
 
     def __init__(self, executor: GuardedTouchExecutor, true_pose=None):
-        self.executor = executor
-        self.true_pose = None if true_pose is None else np.asarray(true_pose, dtype=np.float64)
+        self.executor = as_instance(executor, GuardedTouchExecutor, "executor")
+        self.true_pose = None if true_pose is None else as_pose(true_pose, "true_pose")
 
     def execute(self, action) -> list:
         """One TouchResult per guarded touch of ``action``."""

@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._validate import as_bool, as_count, as_float, as_float_array, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["PadLayout", "SDH2Kinematics", "FINGER_AXES", "DEFAULT_PADS"]
@@ -68,12 +69,16 @@ class PadLayout:
     mirror_x: bool = False
 
     def __post_init__(self):
-        if int(self.cells_x) != self.cells_x or int(self.cells_y) != self.cells_y or self.cells_x < 1 or self.cells_y < 1:
-            raise ValidationError(f"PadLayout cells must be positive integers, got {self.cells_x} x {self.cells_y}")
+        # checked, and stored as plain ints, floats and bools (the dataclass is frozen)
+        for name in ("cells_x", "cells_y"):
+            object.__setattr__(self, name, as_count(getattr(self, name), f"PadLayout.{name}", max=256,
+                                                    why="texels of one pad"))
         for name in ("texel_width", "texel_height"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValidationError(f"PadLayout.{name} must be a positive length (m), got {v}")
+            object.__setattr__(self, name, as_positive_float(getattr(self, name), f"PadLayout.{name} (m)", high=0.1))
+        for name in ("start", "surface_offset"):
+            object.__setattr__(self, name, as_float(getattr(self, name), f"PadLayout.{name} (m)", low=-1.0, high=1.0))
+        for name in ("row0_at_tip", "mirror_x"):
+            object.__setattr__(self, name, as_bool(getattr(self, name), f"PadLayout.{name}"))
 
     @property
     def n_texels(self) -> int:
@@ -122,11 +127,15 @@ class SDH2Kinematics:
     """
 
     def __init__(self, *, l1: float = 0.0865, l2: float = 0.0685, pads=None):
-        self.l1 = float(l1)
-        self.l2 = float(l2)
-        pads = DEFAULT_PADS if pads is None else tuple(pads)
-        if len(pads) != 6 or not all(isinstance(p, PadLayout) for p in pads):
-            raise ValidationError("pads must be 6 PadLayout objects (matrix index = 2 * finger + part)")
+        self.l1 = as_positive_float(l1, "l1 (m)", high=1.0)
+        self.l2 = as_positive_float(l2, "l2 (m)", high=1.0)
+        if pads is None:
+            pads = DEFAULT_PADS
+        elif isinstance(pads, (list, tuple)) and len(pads) == 6 and all(isinstance(p, PadLayout) for p in pads):
+            pads = tuple(pads)
+        else:
+            raise ValidationError("pads must be 6 PadLayout objects (matrix index = 2 * finger + part), "
+                                  f"got {type(pads).__name__}")
         self.pads = pads
         self.bases = _BASES.copy()
         self._cache: dict = {}
@@ -154,10 +163,7 @@ class SDH2Kinematics:
 
     @staticmethod
     def _angles(angles) -> np.ndarray:
-        a = np.asarray(angles, dtype=np.float64).reshape(-1)
-        if a.shape != (7,) or not np.all(np.isfinite(a)):
-            raise ValidationError(f"angles must be 7 finite joint angles (rad), got {np.shape(angles)}")
-        return a
+        return as_float_array(angles, "angles", shape=(7,), expected="7 finite joint angles (rad)")
 
     @staticmethod
     def _finger(finger) -> int:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import (FirmwareError, HardwareError, HardwareTimeout,
                       JointLimitError, ProtocolError, ValidationError)
-from .._validate import as_timeout
+from .._validate import as_bool, as_timeout
 from ._transport import CANLink, Link, as_link
 
 __all__ = ["SDH2", "SDHFirmwareError", "AxisState", "SDH_ERROR_NAMES", "GripPreset",
@@ -269,6 +269,8 @@ class SDH2:
         timeout = as_timeout(timeout, "timeout")
         if timeout <= 0:
             raise ValidationError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        connect = as_bool(connect, "connect")
+        stop_on_fault = as_bool(stop_on_fault, "stop_on_fault")
         self._depth = 0
         self.stops_sent = 0
         self.link: Link = as_link(port)

@@ -50,12 +50,15 @@ class SessionRecord:
     __slots__ = ("result", "finger", "angles", "hand_pose", "time", "extra")
 
     def __init__(self, result, finger=None, angles=None, hand_pose=None, time=0.0, extra=None):
-        self.result = result
-        self.finger = finger
-        self.angles = angles
-        self.hand_pose = hand_pose
-        self.time = time
-        self.extra = extra or {}
+        from .._validate import as_count, as_float, as_float_array, as_instance, as_mapping, as_pose
+
+        self.result = as_instance(result, TouchResult, "result")
+        self.finger = None if finger is None else as_count(finger, "finger", min=0, max=2)
+        self.angles = None if angles is None else as_float_array(angles, "angles", shape=(7,),
+                                                                 expected="7 finite joint angles (rad)")
+        self.hand_pose = None if hand_pose is None else as_pose(hand_pose, "hand_pose")
+        self.time = as_float(time, "time")
+        self.extra = {} if extra is None else as_mapping(extra, "extra")
 
     def __repr__(self):
         return f"SessionRecord(hit={self.result.hit}, travel={self.result.travel:.4f}, finger={self.finger})"
@@ -77,8 +80,12 @@ class SessionLog:
     """
 
     def __init__(self, path, *, fsync: bool = True):
-        self.path = Path(path)
-        self.fsync = bool(fsync)
+        from .._validate import as_bool, as_path
+
+        self.path = as_path(path, "path", must_exist=False)
+        self.fsync = as_bool(fsync, "fsync")
+        if self.path.is_dir():
+            raise ValidationError(f"path must be a file, got the directory {self.path}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "a", encoding="utf-8")
         self.count = 0
@@ -274,9 +281,19 @@ def repair_session(path) -> int:
     return len(torn)
 
 
+def _records(path_or_records) -> list:
+    """A session's records: read from a path, or checked as a list of SessionRecord."""
+    from .._validate import as_sequence
+
+    if isinstance(path_or_records, (str, os.PathLike)):
+        return read_session(path_or_records)
+    return as_sequence(path_or_records, "path_or_records", of=SessionRecord,
+                       expected="a session log's path or a list of SessionRecord")
+
+
 def session_contacts(path_or_records) -> Contacts:
     """All contacts of a session, concatenated (world frame)."""
-    recs = read_session(path_or_records) if isinstance(path_or_records, (str, Path)) else list(path_or_records)
+    recs = _records(path_or_records)
     hits = [r.result.contact for r in recs if r.result.contact is not None and len(r.result.contact)]
     return Contacts.concatenate(hits) if hits else Contacts(np.zeros((0, 3)))
 
@@ -295,7 +312,11 @@ def replay(path_or_records, estimator, region=None):
     region : PoseRegion, optional
         The pose region for static estimators.
     """
-    recs = read_session(path_or_records) if isinstance(path_or_records, (str, Path)) else list(path_or_records)
+    from ..belief import PoseRegion
+    from .._validate import as_instance
+
+    recs = _records(path_or_records)
+    region = as_instance(region, PoseRegion, "region", allow_none=True)
     if region is not None and hasattr(estimator, "localize"):
         return estimator.localize(session_contacts(recs), region)
     if hasattr(estimator, "update") and hasattr(estimator, "belief"):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from .._validate import as_count, as_float_array, as_instance, as_pose, as_sequence
 from ..errors import ValidationError
 from ..models import Contacts
 from .kinematics import SDH2Kinematics
@@ -115,23 +116,23 @@ def find_blobs(frame, angles, kinematics: SDH2Kinematics | None = None, *, thres
     -------
     list of Blob, ordered by pad, then by decreasing pressure.
     """
-    kin = kinematics or SDH2Kinematics()
-    mats = getattr(frame, "matrices", frame)
-    if len(mats) != 6:
-        raise ValidationError(f"a frame must hold 6 matrices (2 per finger), got {len(mats)}")
-    if not 0 <= threshold <= 4095:
-        raise ValidationError(f"threshold must lie in 0..4095, got {threshold}")
-    T = None if hand_pose is None else np.asarray(hand_pose, dtype=np.float64)
-    if T is not None and T.shape != (4, 4):
-        raise ValidationError(f"hand_pose must be (4, 4), got {T.shape}")
+    kin = as_instance(kinematics, SDH2Kinematics, "kinematics", allow_none=True) or SDH2Kinematics()
+    mats = as_sequence(getattr(frame, "matrices", frame), "frame", min_len=6, max_len=6,
+                       expected="a TactileFrame or 6 (cells_y, cells_x) arrays (2 per finger)")
+    angles = kin._angles(angles)
+    threshold = as_count(threshold, "threshold", min=0, max=4095)
+    min_texels = as_count(min_texels, "min_texels", max=10**4)
+    T = None if hand_pose is None else as_pose(hand_pose, "hand_pose")
+    which = range(6) if matrices is None else [as_count(m, "matrices[]", min=0, max=5)
+                                               for m in as_sequence(matrices, "matrices", max_len=6)]
     out = []
-    for m in (range(6) if matrices is None else matrices):
-        v = np.asarray(mats[m])
+    for m in which:
         pad = kin.pads[m]
+        v = as_float_array(mats[m], f"frame matrix {m}", expected="a 2-D array of finite texel values")
         if v.shape != (pad.cells_y, pad.cells_x):
             raise ValidationError(f"matrix {m} is {v.shape}, the kinematics expects "
                                   f"({pad.cells_y}, {pad.cells_x}); build it with with_matrix_info()")
-        mask = v >= max(int(threshold), 1)
+        mask = v >= max(threshold, 1)
         if not mask.any():
             continue
         labels, n = ndimage.label(mask, structure=_STRUCT8)
@@ -150,6 +151,7 @@ def find_blobs(frame, angles, kinematics: SDH2Kinematics | None = None, *, thres
 
 def blobs_to_contacts(blobs) -> Contacts:
     """Contacts (points and normals) of a list of blobs (empty Contacts for none)."""
+    blobs = as_sequence(blobs, "blobs", of=Blob)
     if not blobs:
         return Contacts(np.zeros((0, 3)), np.zeros((0, 3)))
     return Contacts(np.stack([b.point for b in blobs]), np.stack([b.normal for b in blobs]))
