@@ -353,7 +353,8 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
 
     from .._util import as_rng
     from ..dnf.data import RotationDataset
-    from ..hardware.dnf_features import CurvedPadKinematics, check_min_width, frame_normal_angles
+    from .._validate import as_float
+    from ..hardware.dnf_features import CurvedPadKinematics, frame_normal_angles
     from ..hardware.dsacon import DSACON32m
     from ..hardware.emulator import DSACON32mEmulator, SimWorld, TCPServer
     from ..models import MeshObject
@@ -373,7 +374,8 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
         raise ValidationError(f"stroke must be (lo, hi) rad with 0 < lo <= hi < pi, got {stroke!r}")
     if not (np.isfinite(under_estimate) and -0.5 < under_estimate < 0.5):
         raise ValidationError(f"under_estimate must be in (-0.5, 0.5), got {under_estimate!r}")
-    check_min_width(min_width)
+    if min_width is not None:
+        min_width = as_float(min_width, "min_width (m)", low=0.0, high=0.1, high_open=True)
     rng = as_rng(rng)
     th = np.radians(4.0)
     angles = np.array([np.radians(60.0), th, -th, th, -th, th, -th])

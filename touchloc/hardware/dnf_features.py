@@ -30,7 +30,7 @@ import numpy as np
 from .._validate import as_float, as_float_array, as_instance, as_pose, as_positive_float, as_sequence
 from ..errors import ValidationError
 from .kinematics import SDH2Kinematics
-from .tactile import find_blobs
+from .tactile import Blob, find_blobs
 
 __all__ = ["rotation_plane_angles", "blob_normals", "blob_widths", "frame_normal_angles", "CurvedPadKinematics"]
 
@@ -122,18 +122,7 @@ def blob_normals(blobs, angles, kinematics: SDH2Kinematics | None = None, *, pad
 
 
 def _check_blobs(blobs) -> list:
-    from .tactile import Blob
-
     return as_sequence(blobs, "blobs", of=Blob, expected="a list of Blob (from find_blobs)")
-
-
-def check_min_width(min_width) -> None:
-    """Raise :class:`ValidationError` unless ``min_width`` is None or a width in [0, 0.1) m."""
-    ok = min_width is None or (isinstance(min_width, (int, float, np.floating, np.integer))
-                               and not isinstance(min_width, (bool, np.bool_))
-                               and bool(np.isfinite(min_width)) and 0 <= min_width < 0.1)
-    if not ok:
-        raise ValidationError(f"min_width must be None or a width in [0, 0.1) m, got {min_width!r}")
 
 
 def blob_widths(blobs, kinematics: SDH2Kinematics | None = None) -> np.ndarray:
@@ -188,7 +177,8 @@ def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinem
     finger : (K,) int
         The finger (0, 1, 2) of each angle.
     """
-    check_min_width(min_width)
+    if min_width is not None:
+        min_width = as_float(min_width, "min_width (m)", low=0.0, high=0.1, high_open=True)
     blobs = find_blobs(frame, angles, kinematics, threshold=threshold, min_texels=min_texels,
                        hand_pose=hand_pose)
     if min_width is not None and blobs:
