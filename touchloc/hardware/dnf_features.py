@@ -167,7 +167,8 @@ def frame_normal_angles(frame, angles, *, axis, reference, kinematics: SDH2Kinem
         Drop blobs narrower than this across the finger (m, :func:`blob_widths`): line
         contacts on corners and edges, whose normal is the pad's wherever the corner
         landed rather than a side's. None keeps every blob. About 8 mm (between one and
-        three 3.4 mm texel columns) for the SDH-2's pads pressed 0.5-1 mm into flat sides.
+        three 3.4 mm texel columns) for the SDH-2's 20 mm pads pressed 0.8-1.2 mm into flat sides
+        (docs/dnf.md: shallower presses leave sides too narrow to tell from corners).
 
     Returns
     -------
