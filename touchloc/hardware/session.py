@@ -312,11 +312,7 @@ def replay(path_or_records, estimator, region=None):
     region : PoseRegion, optional
         The pose region for static estimators.
     """
-    from ..belief import PoseRegion
-    from .._validate import as_instance
-
     recs = _records(path_or_records)
-    region = as_instance(region, PoseRegion, "region", allow_none=True)
     if region is not None and hasattr(estimator, "localize"):
         return estimator.localize(session_contacts(recs), region)
     if hasattr(estimator, "update") and hasattr(estimator, "belief"):
