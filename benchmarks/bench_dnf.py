@@ -110,6 +110,7 @@ _AXES = [("normals per finger", "normals_per_contact", [1, 2, 4, 12, 40]),
 _SWEEP_OBJECTS = [("4-gon", 4), ("5-gon", 5), ("6-gon", 6), ("8-gon", 8), ("round", 0)]
 #: the estimators of the sweep (touchloc.dnf.compare.default_estimators, made with rng=0)
 DNF_NAMES = ("histogram", "memory, uncorrected", "DNF, corrected", "particle filter")
+DNF, PARTICLE = DNF_NAMES[2], DNF_NAMES[3]
 
 
 def _cell_kwargs(cell):
@@ -156,15 +157,15 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
         acc = {name: {} for name in names}
         for r in sorted((r for r in results if r["cell"] == ci), key=lambda r: (r["object"], r["set"])):
             acc[r["estimator"]].setdefault(_SWEEP_OBJECTS[r["object"]][0], []).append(r["accuracy"])
-        dnf = {o: float(np.mean(v)) for o, v in acc["DNF, corrected"].items()}
+        dnf = {o: float(np.mean(v)) for o, v in acc[DNF].items()}
         means = {name: float(np.mean([np.mean(v) for v in acc[name].values()])) for name in names}
-        pf8 = float(np.mean(acc["particle filter"]["8-gon"]))
+        pf8 = float(np.mean(acc[PARTICLE]["8-gon"]))
         pf_vs_dnf.append(dnf["8-gon"] - pf8)
         worst[_cell_label(cell)] = min(dnf.values())
         worst_obj[_cell_label(cell)] = min(dnf, key=dnf.get)
         base_acc.append((means["histogram"], means["memory, uncorrected"]))
         rows.append(f"| {_cell_label(cell)} | " + " | ".join(f"{dnf[o]:.0%}" for o, _ in _SWEEP_OBJECTS)
-                    + f" | **{means['DNF, corrected']:.0%}** | {means['memory, uncorrected']:.0%} | "
+                    + f" | **{means[DNF]:.0%}** | {means['memory, uncorrected']:.0%} | "
                     f"{means['histogram']:.0%} | {means['particle filter']:.0%} | {pf8:.0%} |")
     dt = time.perf_counter() - t0
     n_ok = sum(w >= 0.9 for w in worst.values())
@@ -218,7 +219,6 @@ def _families(quick: bool) -> str:
     return "\n".join(out)
 
 
-DNF, PARTICLE = "DNF, corrected", "particle filter"      # names in default_estimators()
 
 #: held-out settings of the emulated hand: seeds and geometry not looked at while the width
 #: filter (8 mm) was chosen on seeds 0-1 at the defaults
