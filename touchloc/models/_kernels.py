@@ -100,9 +100,16 @@ def _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w):
 
 
 @nb.njit(inline="always", **_NB)
-def _normal_term(nrm, f, nx, ny, nz, w):
-    """w |n - n_f|^2: a lower bound of face f's joint cost, without the triangle."""
-    return w * ((nx - nrm[f, 0]) ** 2 + (ny - nrm[f, 1]) ** 2 + (nz - nrm[f, 2]) ** 2)
+def _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w):
+    """A lower bound of face f's joint cost that skips the triangle: the squared distance
+    to the face's plane plus the normal term. Valid because n_f is the unit normal of the
+    face's plane (MeshObject's face normals are; degenerate faces are not queried)."""
+    s = ((px - tri[f, 0, 0]) * nrm[f, 0] + (py - tri[f, 0, 1]) * nrm[f, 1]
+         + (pz - tri[f, 0, 2]) * nrm[f, 2])
+    lb = s * s
+    if w > 0.0:
+        lb += w * ((nx - nrm[f, 0]) ** 2 + (ny - nrm[f, 1]) ** 2 + (nz - nrm[f, 2]) ** 2)
+    return lb
 
 
 @nb.njit(inline="always", **_NB)
@@ -266,7 +273,7 @@ def _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
         if left[node] < 0:
             s = start[node]
             for f in range(s, s + count[node]):
-                if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
+                if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
                     continue
                 c, qx, qy, qz = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
                 if c < best:
@@ -395,7 +402,7 @@ def _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj, px, p
         return False, best, bf
     for j in range(offsets[cell], offsets[cell + 1]):
         f = ids[j]
-        if w > 0.0 and _normal_term(nrm, f, nx, ny, nz, w) >= best:
+        if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
             continue
         c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
         if c < best:
@@ -408,7 +415,7 @@ def _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj, px, p
             moved = False
             for j in range(adj_off[bf], adj_off[bf + 1]):
                 g = adj[j]
-                if _normal_term(nrm, g, nx, ny, nz, w) >= best:
+                if _face_lb(tri, nrm, g, px, py, pz, nx, ny, nz, w) >= best:
                     continue
                 c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
                 if c < best:
