@@ -13,10 +13,14 @@ Three evaluators share the triangle routine:
 * ``query_bruteforce``: every face, every query (the reference);
 * ``query_joint``: a bounding-volume hierarchy with branch-and-bound on a lower bound of
   the joint cost (box distance in position plus box distance in normal space): exact;
-* ``query_candidates``: a precomputed grid whose cells list the faces that win at the cell
-  centre for a set of sampled normals (and, in position-only mode, every face that can be
-  closest anywhere in the cell); the minimum is taken over that list only. Exact in
+* ``query_grid``: a precomputed grid (nested levels, finest near the mesh) whose cells
+  list the faces that win at the cell centre for a set of sampled normals (and, in
+  position-only mode, every face that can be closest anywhere in the cell); the minimum
+  is taken over that list and a greedy walk over neighbouring faces. Exact in
   position-only mode, an approximation with measured error otherwise.
+
+Every evaluator skips a face whose lower bound (squared distance to its plane plus the
+normal term) is already above the best cost, before the closest-point routine.
 """
 
 from __future__ import annotations
@@ -370,12 +374,14 @@ def query_joint(tree: BVH, P, N, wp: float, wn: float):
 # candidate grid (the "fast" method)
 @dataclass(frozen=True)
 class CandidateGrid:
-    """Cells over an axis-aligned box; cell c lists faces ids[offsets[c]:offsets[c+1]]."""
+    """Levels of cells over nested axis-aligned boxes, finest first; cell c of level l
+    lists faces ids[offsets[base[l] + c]:offsets[base[l] + c + 1]]."""
 
-    lo: np.ndarray  # (3,) grid origin (corner of cell 0)
-    h: float  # cell size (m)
-    shape: tuple  # (nx, ny, nz)
-    offsets: np.ndarray  # (C+1,)
+    lo: np.ndarray  # (L, 3) origin (corner of cell 0) of each level
+    h: np.ndarray  # (L,) cell size of each level (m)
+    shape: np.ndarray  # (L, 3) cells per axis of each level
+    base: np.ndarray  # (L,) index of each level's first cell
+    offsets: np.ndarray  # (C+1,) over the cells of every level
     ids: np.ndarray  # tree-order face ids into tri/nrm below
     tri: np.ndarray
     nrm: np.ndarray
@@ -385,20 +391,24 @@ class CandidateGrid:
 
 
 @nb.njit(inline="always", **_NB)
-def _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj, px, py, pz, nx, ny, nz, w, descend,
+def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py, pz, nx, ny, nz, w, descend,
                best):
     """The best face of the point's cell list (and the greedy descent from it) below ``best``.
 
-    Returns (listed, cost, face): ``listed`` is False outside the grid or in a cell without
-    a list; ``face`` is -1 (and ``cost`` the given ``best``) when no listed face is below it.
+    The cell is that of the finest level whose box holds the point. Returns (listed, cost,
+    face): ``listed`` is False outside every level or in a cell without a list; ``face``
+    is -1 (and ``cost`` the given ``best``) when no listed face is below it.
     """
-    ix = int(np.floor((px - lo[0]) / h))
-    iy = int(np.floor((py - lo[1]) / h))
-    iz = int(np.floor((pz - lo[2]) / h))
     bf = -1
-    inside = 0 <= ix < nx_ and 0 <= iy < ny_ and 0 <= iz < nz_
-    cell = (ix * ny_ + iy) * nz_ + iz
-    if not (inside and offsets[cell + 1] > offsets[cell]):
+    cell = -1
+    for lvl in range(lo.shape[0]):
+        ix = int(np.floor((px - lo[lvl, 0]) / h[lvl]))
+        iy = int(np.floor((py - lo[lvl, 1]) / h[lvl]))
+        iz = int(np.floor((pz - lo[lvl, 2]) / h[lvl]))
+        if 0 <= ix < shape[lvl, 0] and 0 <= iy < shape[lvl, 1] and 0 <= iz < shape[lvl, 2]:
+            cell = base[lvl] + (ix * shape[lvl, 1] + iy) * shape[lvl, 2] + iz
+            break
+    if cell < 0 or offsets[cell + 1] <= offsets[cell]:
         return False, best, bf
     for j in range(offsets[cell], offsets[cell + 1]):
         f = ids[j]
@@ -428,9 +438,9 @@ def _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj, px, p
 
 
 @nb.njit(inline="always", **_NB)
-def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
               plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend):
-    listed, best, bf = _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+    listed, best, bf = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                   px, py, pz, nx, ny, nz, w, descend, np.inf)
     if not listed:  # outside the grid, or a cell too crowded to list: exact through the tree
         best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
@@ -439,7 +449,7 @@ def _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
 
 
 @nb.njit(parallel=True, **_NB)
-def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                 plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
     Q = P.shape[0]
     cost = np.empty(Q)
@@ -448,14 +458,14 @@ def _grid_query(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
         nx = ny = nz = 0.0
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
-        cost[q], face[q] = _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                      plo, phi, nlo, nhi, left, right, start, count,
                                      P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
     return face, cost
 
 
 @nb.njit(**_SERIAL)
-def _grid_query_serial(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
     Q = P.shape[0]
     cost = np.empty(Q)
@@ -464,7 +474,7 @@ def _grid_query_serial(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, ad
         nx = ny = nz = 0.0
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
-        cost[q], face[q] = _grid_one(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                      plo, phi, nlo, nhi, left, right, start, count,
                                      P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
     return face, cost
@@ -530,44 +540,54 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def build_candidate_grid(tree: BVH, lo, hi, cell: float, w: float, n_normals: int = 64,
+def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
                          max_list: int = 48) -> CandidateGrid:
-    """Precompute the candidate lists of every cell of a grid over the box [lo, hi].
+    """Precompute the candidate lists of every cell of each level.
 
-    Joint cost (w > 0): the winners at the cell centre for ``n_normals`` directions and
-    the closest face. Position only: every face that can be closest in the cell, or an
-    empty list (meaning: use the exact tree) when more than ``max_list`` qualify.
+    ``levels``: (lo, hi, cell) per level, finest first; a query uses the finest level
+    whose box holds it. Joint cost (w > 0): a cell lists the winners at its centre for
+    ``n_normals`` directions and the closest face. Position only: every face that can be
+    closest in the cell, or an empty list (meaning: use the exact tree) when more than
+    ``max_list`` qualify.
     """
-    lo = np.asarray(lo, dtype=np.float64)
-    hi = np.asarray(hi, dtype=np.float64)
-    shape = tuple(int(s) for s in np.maximum(1, np.ceil((hi - lo) / cell)).astype(int))
-    g = [lo[d] + (np.arange(shape[d]) + 0.5) * cell for d in range(3)]
-    centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
     args = (tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
-    if w > 0:
-        # the sampled normals, plus a zero "normal" whose winner is the closest face in position
-        dirs = np.vstack([fibonacci_sphere(n_normals), np.zeros((1, 3))])
-        rows = np.empty((len(centres), len(dirs)), np.int64)
-        _grid_lists_joint(args[0], args[1], args[2], args[3], args[4], args[5], args[6], args[7],
-                          args[8], args[9], centres, dirs, float(w), rows)
-        rows.sort(axis=1)
-        keep = np.ones_like(rows, dtype=bool)
-        keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
-        counts = keep.sum(axis=1)
-        ids = rows[keep]
-    else:
-        cap = max_list
-        rows = np.full((len(centres), cap), -1, np.int64)
-        counts = _grid_lists_position(args[0], args[2], args[3], args[4], args[5], args[1],
-                                      args[6], args[7], args[8], args[9], centres,
-                                      0.5 * cell * np.sqrt(3.0), rows, cap)
-        counts = np.where(counts > cap, 0, counts)  # crowded cells: exact fallback
-        ids = rows[np.arange(cap)[None, :] < counts[:, None]]
-    offsets = np.zeros(len(centres) + 1, np.int64)
+    los, hs, shapes, counts_all, ids_all = [], [], [], [], []
+    for lo, hi, cell in levels:
+        lo = np.asarray(lo, dtype=np.float64)
+        hi = np.asarray(hi, dtype=np.float64)
+        shape = np.maximum(1, np.ceil((hi - lo) / cell)).astype(np.int64)
+        g = [lo[d] + (np.arange(shape[d]) + 0.5) * cell for d in range(3)]
+        centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+        if w > 0:
+            # the sampled normals, plus a zero "normal" whose winner is the closest face in position
+            dirs = np.vstack([fibonacci_sphere(n_normals), np.zeros((1, 3))])
+            rows = np.empty((len(centres), len(dirs)), np.int64)
+            _grid_lists_joint(*args, centres, dirs, float(w), rows)
+            rows.sort(axis=1)
+            keep = np.ones_like(rows, dtype=bool)
+            keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
+            counts = keep.sum(axis=1)
+            ids = rows[keep]
+        else:
+            rows = np.full((len(centres), max_list), -1, np.int64)
+            counts = _grid_lists_position(args[0], args[2], args[3], args[4], args[5], args[1],
+                                          args[6], args[7], args[8], args[9], centres,
+                                          0.5 * cell * np.sqrt(3.0), rows, max_list)
+            counts = np.where(counts > max_list, 0, counts)  # crowded cells: exact fallback
+            ids = rows[np.arange(max_list)[None, :] < counts[:, None]]
+        los.append(lo)
+        hs.append(float(cell))
+        shapes.append(shape)
+        counts_all.append(counts)
+        ids_all.append(ids)
+    counts = np.concatenate(counts_all)
+    offsets = np.zeros(len(counts) + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
+    base = np.concatenate([[0], np.cumsum([len(c) for c in counts_all])[:-1]]).astype(np.int64)
     adj_off, adj = tree_adjacency(tree)
-    return CandidateGrid(lo=lo, h=float(cell), shape=shape, offsets=offsets, ids=ids.astype(np.int64),
-                         tri=tree.tri, nrm=tree.nrm, w=float(w), adj_off=adj_off, adj=adj)
+    return CandidateGrid(lo=np.array(los), h=np.array(hs), shape=np.array(shapes, np.int64), base=base,
+                         offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
+                         w=float(w), adj_off=adj_off, adj=adj)
 
 
 def tree_adjacency(tree: BVH):
@@ -611,10 +631,9 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
     kernel = _grid_query if len(P) >= PARALLEL_MIN else _grid_query_serial
-    f, c = kernel(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2],
-                       grid.offsets, grid.ids, grid.adj_off, grid.adj, tree.plo, tree.phi, tree.nlo,
-                       tree.nhi, tree.left, tree.right, tree.start, tree.count, P, Nn,
-                       grid.w if use_n else 0.0, use_n, use_n)
+    f, c = kernel(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off,
+                  grid.adj, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count,
+                  P, Nn, grid.w if use_n else 0.0, use_n, use_n)
     return tree.face_id[f], c
 
 
@@ -625,12 +644,12 @@ EXACT, GRID = 0, 1
 
 
 @nb.njit(inline="always", **_NB)
-def _pair_cost(mode, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, rem):
     """min(cost, rem) of one object-frame query (rem: what the pose has left of its budget)."""
     if mode == GRID:
         # the list's own answer whatever the budget (the descent starts from its best face)
-        listed, best, _ = _list_best(tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+        listed, best, _ = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                      px, py, pz, nx, ny, nz, w, descend, np.inf)
         if listed:
             return min(best, rem)
@@ -640,7 +659,7 @@ def _pair_cost(mode, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
 
 
 @nb.njit(inline="always", **_NB)
-def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off,
+def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
               adj, plo, phi, nlo, nhi, left, right, start, count, out):
     """Costs of pose i for every contact, in order, until they reach the pose's budget.
 
@@ -666,7 +685,7 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_,
             ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
             nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
         rem = b - s
-        c = _pair_cost(mode, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+        c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
                        w if use_n else 0.0, use_n, rem)
         out[i, k] = c
@@ -677,25 +696,25 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_,
 
 
 @nb.njit(parallel=True, **_NB)
-def _pose_costs(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off, adj,
+def _pose_costs(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                 plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in nb.prange(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids,
                             adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
 
 @nb.njit(**_SERIAL)
-def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids, adj_off,
+def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
                        adj, plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in range(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, nx_, ny_, nz_, offsets, ids,
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids,
                             adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
@@ -708,7 +727,8 @@ def _no_grid():
     global _NO_GRID
     if _NO_GRID is None:
         z = np.zeros(1, np.int64)
-        _NO_GRID = (np.zeros(3), 1.0, 0, 0, 0, np.zeros(2, np.int64), z, np.zeros(2, np.int64), z)
+        _NO_GRID = (np.zeros((1, 3)), np.ones(1), np.zeros((1, 3), np.int64), z, np.zeros(2, np.int64), z,
+                    np.zeros(2, np.int64), z)
     return _NO_GRID
 
 
@@ -750,8 +770,7 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
         g = _no_grid()
     else:
         mode = GRID
-        g = (grid.lo, grid.h, grid.shape[0], grid.shape[1], grid.shape[2], grid.offsets, grid.ids, grid.adj_off,
-             grid.adj)
+        g = (grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off, grid.adj)
     if n == 0 or len(P) == 0:
         return np.zeros((n, len(P))), np.ones(n, bool)
     kernel = _pose_costs if n * len(P) >= PARALLEL_MIN else _pose_costs_serial

@@ -18,8 +18,15 @@ __all__ = ["ProximityModel", "contacts_in_object_frame"]
 METHODS = ("exact", "fast", "bruteforce", "auto")
 
 #: ``auto`` switches to the precomputed grid when a call has at least this many
-#: pose-contact pairs (the grid's one-off build then pays for itself).
-AUTO_FAST_PAIRS = 20_000
+#: pose-contact pairs. One such call does not pay for the grid's one-off build (0.3-5 s on
+#: the bundled meshes, then kept on disk), but an estimator makes tens of them: a Scaling
+#: Series posterior stage is 500 poses x K contacts per pass. Smaller calls (a planner's
+#: few hypotheses) stay exact and build nothing.
+AUTO_FAST_PAIRS = 2_000
+
+#: The fast grid's coarser levels: (reach beyond the mesh bounds in largest extents, cell
+#: size as a multiple of the finest level's). Queries beyond the last use the exact tree.
+COARSE_LEVELS = ((2.0, 4.0), (8.0, 16.0))
 
 
 def contacts_in_object_frame(poses: np.ndarray, contacts: Contacts):
@@ -68,9 +75,9 @@ class ProximityModel(MeasurementModel):
         it, the exact evaluation. ``bruteforce``: every face (reference, slow).
         ``auto``: ``fast`` for calls with many pose-contact pairs, else ``exact``.
     grid_cell : float, optional
-        Cell size of the fast grid (m); default: largest extent / 24.
+        Cell size of the fast grid's finest level (m); default: largest extent / 24.
     grid_margin : float, optional
-        How far the fast grid reaches beyond the mesh bounds (m); default: a quarter of
+        How far the finest level reaches beyond the mesh bounds (m); default: a quarter of
         the largest extent.
     grid_normals : int
         Sampled normal directions per cell for the fast grid (default 64).
@@ -79,10 +86,15 @@ class ProximityModel(MeasurementModel):
     -----
     The fast method lists, per grid cell, the faces that minimise the joint cost at the
     cell centre for ``grid_normals`` normal directions (and the closest face in
-    position), and minimises over that list only. The result is never below the exact
-    cost; position-only costs are exact (the lists then hold every face that can be
-    closest anywhere in the cell), and joint costs err only when the winning face is
-    missing from the list. docs/benchmarks.md reports the measured error.
+    position), minimises over that list, and then walks to neighbouring faces while the
+    cost falls. The grid has three nested levels: the finest over the mesh bounds plus
+    ``grid_margin``, then cells 4x and 16x as large reaching 2 and 8 largest extents
+    beyond the bounds (:data:`COARSE_LEVELS`), so that the far-off contacts of a
+    wrongly placed pose are listed too; beyond them the exact tree answers. The result
+    is never below the exact cost; position-only costs are exact (the lists then hold
+    every face that can be closest anywhere in the cell), and joint costs err only when
+    the winning face is missing from the list. docs/benchmarks.md reports the measured
+    error.
     """
 
     def __init__(self, obj: MeshObject, sigma_pos: float, sigma_nor: float | None = None,
@@ -122,13 +134,14 @@ class ProximityModel(MeasurementModel):
         grid = self.obj._cache.get(key)
         if grid is None:
             lo, hi = self.obj.bounds
-            lo = lo - self.grid_margin
-            hi = hi + self.grid_margin
+            ext = float(self.obj.extents.max())
+            levels = [(lo - self.grid_margin, hi + self.grid_margin, self.grid_cell)]
+            levels += [(lo - r * ext, hi + r * ext, f * self.grid_cell) for r, f in COARSE_LEVELS]
             tree = self.obj.bvh(w)
             grid = cached_structure(  # on disk: keyed by mesh content, parameters and builder code
-                "candidate_grid", self.obj, dict(w=w, lo=lo, hi=hi, cell=self.grid_cell, normals=self.grid_normals,
-                                                  tree_order=tree.face_id),
-                lambda: K.build_candidate_grid(tree, lo, hi, self.grid_cell, w, self.grid_normals),
+                "candidate_grid", self.obj, dict(w=w, levels=np.array([np.r_[a, b, c] for a, b, c in levels]),
+                                                  normals=self.grid_normals, tree_order=tree.face_id),
+                lambda: K.build_candidate_grid(tree, levels, w, self.grid_normals),
                 K.CandidateGrid, code=(K,))
             self.obj._cache[key] = grid
         return grid
