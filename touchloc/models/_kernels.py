@@ -410,9 +410,23 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py,
             break
     if cell < 0 or offsets[cell + 1] <= offsets[cell]:
         return False, best, bf
+    # best first: the face with the lowest bound sets a tight cost, then the bound skips
+    # most of the others without their closest-point routine
+    lead = -1
+    lead_lb = np.inf
+    for j in range(offsets[cell], offsets[cell + 1]):
+        lb = _face_lb(tri, nrm, ids[j], px, py, pz, nx, ny, nz, w)
+        if lb < lead_lb:
+            lead_lb = lb
+            lead = ids[j]
+    if lead_lb < best:
+        c, _, _, _ = _face_cost(tri, nrm, lead, px, py, pz, nx, ny, nz, w)
+        if c < best:
+            best = c
+            bf = lead
     for j in range(offsets[cell], offsets[cell + 1]):
         f = ids[j]
-        if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
+        if f == lead or _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
             continue
         c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
         if c < best:
