@@ -137,10 +137,53 @@ def test_fast_position_only_is_exact_and_far_points_fall_back(objects, rng):
     model = ProximityModel(obj, 0.002, None)
     P = obj.bounds[0] - 0.1 + rng.random((3000, 3)) * (obj.extents + 0.2)  # half lie off-grid
     assert np.allclose(model.query_costs(P, method="fast"), model.query_costs(P, method="exact"), rtol=1e-9)
-    far = np.array([[1.0, 1.0, 1.0]])
+    far = np.array([[5.0, 5.0, 5.0]])  # beyond the grid's coarsest level: the exact tree
     nn = np.array([[0.0, 0.0, 1.0]])
     m2 = ProximityModel(obj, 0.002, 0.2)
     assert np.allclose(m2.query_costs(far, nn, method="fast"), m2.query_costs(far, nn, method="exact"))
+
+
+def test_fast_grid_levels_are_nested_and_list_far_contacts_with_small_relative_error(objects):
+    from touchloc.models.proximity import COARSE_LEVELS
+
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, 0.1)
+    grid = model._grid(model._weight(True))
+    assert len(grid.h) == 1 + len(COARSE_LEVELS)
+    hi = grid.lo + grid.shape * grid.h[:, None]
+    for a in range(len(grid.h) - 1):  # each level's box inside the next, with larger cells
+        assert np.all(grid.lo[a + 1] <= grid.lo[a]) and np.all(hi[a + 1] >= hi[a])
+        assert grid.h[a + 1] > grid.h[a]
+    # contacts of a wrong pose: 1-3 extents from the mesh, any normal
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    P = obj.bounds.mean(axis=0) + d * obj.extents.max() * rng.uniform(1.0, 3.0, (3000, 1))
+    N = rng.normal(size=(3000, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    in_coarse = ~np.all((P >= grid.lo[0]) & (P < hi[0]), axis=1) & np.all((P >= grid.lo[-1]) & (P < hi[-1]), axis=1)
+    assert in_coarse.mean() > 0.9  # these are served by the coarse levels, not the tree
+    exact = model.query_costs(P, N, method="exact")
+    fast = model.query_costs(P, N, method="fast")
+    rel = (fast - exact) / exact
+    assert np.all(rel >= -1e-9)
+    assert np.percentile(rel, 99) < 0.01 and rel.max() < 0.5
+
+
+def test_auto_uses_the_grid_from_its_pair_threshold_and_not_below(objects, rng):
+    from touchloc.models.proximity import AUTO_FAST_PAIRS
+
+    obj = objects["milk"]
+    model = ProximityModel(obj, 0.002, 0.1, grid_cell=0.0123)  # a grid no other test builds
+    contacts = noisy_contacts(obj, rng, 10, np.eye(4))
+
+    def grids():
+        return [k for k in obj._cache if isinstance(k, tuple) and k[0] == "grid" and k[2] == 0.0123]
+
+    model.contact_costs(random_poses(rng, AUTO_FAST_PAIRS // 10 - 1), contacts)
+    assert grids() == []
+    model.contact_costs(random_poses(rng, AUTO_FAST_PAIRS // 10), contacts)
+    assert len(grids()) == 1
 
 
 @pytest.mark.parametrize("method", ["exact", "fast"])
