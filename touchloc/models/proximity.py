@@ -87,10 +87,10 @@ class ProximityModel(MeasurementModel):
     The fast method lists, per grid cell, the faces that minimise the joint cost at the
     cell centre for ``grid_normals`` normal directions (and the closest face in
     position), minimises over that list, and then walks to neighbouring faces while the
-    cost falls. The grid has three nested levels: the finest over the mesh bounds plus
-    ``grid_margin``, then cells 4x and 16x as large reaching 2 and 8 largest extents
-    beyond the bounds (:data:`COARSE_LEVELS`), so that the far-off contacts of a
-    wrongly placed pose are listed too; beyond them the exact tree answers. The result
+    cost falls. For joint costs the grid has three nested levels: the finest over the
+    mesh bounds plus ``grid_margin``, then cells 4x and 16x as large reaching 2 and 8
+    largest extents beyond the bounds (:data:`COARSE_LEVELS`), so that the far-off
+    contacts of a wrongly placed pose are listed too; beyond them the exact tree answers. The result
     is never below the exact cost; position-only costs are exact (the lists then hold
     every face that can be closest anywhere in the cell), and joint costs err only when
     the winning face is missing from the list. docs/benchmarks.md reports the measured
@@ -136,7 +136,8 @@ class ProximityModel(MeasurementModel):
             lo, hi = self.obj.bounds
             ext = float(self.obj.extents.max())
             levels = [(lo - self.grid_margin, hi + self.grid_margin, self.grid_cell)]
-            levels += [(lo - r * ext, hi + r * ext, f * self.grid_cell) for r, f in COARSE_LEVELS]
+            if w > 0:  # position-only lists of large far cells are too crowded to keep
+                levels += [(lo - r * ext, hi + r * ext, f * self.grid_cell) for r, f in COARSE_LEVELS]
             tree = self.obj.bvh(w)
             grid = cached_structure(  # on disk: keyed by mesh content, parameters and builder code
                 "candidate_grid", self.obj, dict(w=w, levels=np.array([np.r_[a, b, c] for a, b, c in levels]),
