@@ -30,7 +30,11 @@ PROFILE = ("Where the update's time went before the change measured here (cProfi
            "batches as rigid transforms (`as_poses`: in the contact costs, the ray stops, the region's `perturb` "
            "and `contains`, and `ParticleBelief`), mostly `einsum` over 3 x 3 blocks and a batched `det`. The "
            "check now works column by column (dot products and a triple product; 0.59 -> 0.14 ms for 2000 "
-           "poses), which is the difference between the two trees.")
+           "poses), which is the difference between the two trees. Since then the filter's 2000-particle passes use "
+           "the fast likelihood's grid (`auto` from 2,000 pose-contact pairs, was 20,000): update median 0.100 to "
+           "0.064 s over these runs. The mug's median touch count on these three seeds went from 6 to 11 (seed 0 "
+           "needs 11 touches); over seeds 0-11 it is 6 either way, with 11 of 12 runs confident against 8 of 12 "
+           "with the exact tree.")
 
 
 def worker() -> int:
@@ -54,6 +58,8 @@ def worker() -> int:
             w = SimulatedWorld(sc.obj, sc.hidden_pose(rng=99), rng=99)
             active_localization(w, sc.model, sc.region, OneStepPlanner(sc.model), sc.candidates, max_touches=1,
                                 rng=99)
+            # the fast likelihood's grid (used from 2000 pose-contact pairs; one touch may not reach it)
+            sc.model.query_costs(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), method="fast")
         sc = scenarios[req["mesh"]]
         seed = req["seed"]
         world = SimulatedWorld(sc.obj, sc.hidden_pose(rng=seed), rng=seed + 1)
