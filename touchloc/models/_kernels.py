@@ -25,6 +25,7 @@ normal term) is already above the best cost, before the closest-point routine.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numba as nb
@@ -42,6 +43,9 @@ _NB = dict(cache=numba_cache_enabled(__file__), fastmath=False, nogil=True)
 #: kernel, 100-8000 pose-contact pairs on the mug, numba 0.68; docs/benchmarks.md, "Localisation
 #: speed with few contacts").
 _SERIAL = dict(_NB, parallel=True)
+# ... which makes numba warn, at compile time, that it found nothing to run in parallel there
+warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified but no transformation",
+                        category=nb.NumbaPerformanceWarning)
 
 #: Below this many queries the kernels run on one thread: starting the thread pool costs
 #: more than it saves (and much more on a loaded machine).
