@@ -247,3 +247,26 @@ def test_models_add(objects, rng):
     assert isinstance(s, SumModel) and len((s + a).models) == 3
     assert np.allclose(s.log_likelihood(poses, contacts),
                        a.log_likelihood(poses, contacts) + b.log_likelihood(poses, contacts))
+
+
+def test_face_lower_bound_never_exceeds_the_face_cost(objects):
+    """The bound that lets a search skip a face's closest-point routine (plane distance
+    plus normal term) is below the face's joint cost for any point, normal and face."""
+    from touchloc.models import _kernels as K
+
+    obj = objects["mug"]
+    tree = obj.bvh(0.0)
+    rng = np.random.default_rng(11)
+    w = 0.002 ** 2 / 0.1 ** 2
+    P = obj.bounds[0] - 0.05 + rng.random((3000, 3)) * (obj.extents + 0.1)
+    N = rng.normal(size=(3000, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    F = rng.integers(0, len(tree.tri), 3000)
+    gap = []
+    for p, n, f in zip(P, N, F):
+        lb = K._face_lb(tree.tri, tree.nrm, f, *p, *n, w)
+        cost = K._face_cost(tree.tri, tree.nrm, f, *p, *n, w)[0]
+        gap.append(cost - lb)
+    gap = np.array(gap)
+    assert gap.min() >= -1e-12
+    assert np.mean(gap > 1e-9) > 0.5  # a bound, not the cost itself: most points project off the face
