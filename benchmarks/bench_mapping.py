@@ -69,12 +69,25 @@ class PositionsOnly:
 
 def trial(obj, seed, *, planner="uncertainty", free_space=True, touches=100, noise=(0.001, 5.0),
           checkpoints=(10, 20, 30, 40, 50, 60, 70, 80, 90, 100), calib_at=(30, 100), method="gpis",
-          normals=True):
-    from touchloc.mapping import chamfer_distance, explore, fscore
+          normals=True, oracle_hits=False):
+    """One mapping run with Chamfer / F-score checkpoints.
+
+    ``oracle_hits``: the planner's candidate pool keeps only the touches that would hit the
+    hidden object (found by ray casting it): an upper bound on what knowing where the
+    object is not can do for the planner.
+    """
+    from touchloc.mapping import box_pool, chamfer_distance, explore, fscore
 
     world, bounds, truth, T = _setup(obj, seed, noise)
     if not normals:
         world = PositionsOnly(world)
+    candidates = None
+    if oracle_hits:
+        def candidates(rng):
+            pool = box_pool(bounds, 60, rng=rng)
+            d, _, _ = truth.ray_cast(np.array([t.origin for t in pool]), np.array([t.direction for t in pool]))
+            hit = [t for t, di in zip(pool, d) if di <= t.max_travel]
+            return hit or pool
     out = {"chamfer": {}, "fscore": {}, "calib": {}, "update": [], "contacts": []}
     tp, _, _ = truth.sample_surface(2000, rng=7)
 
@@ -94,7 +107,7 @@ def trial(obj, seed, *, planner="uncertainty", free_space=True, touches=100, noi
             out["calib"][k] = float(np.mean(np.abs(mu) <= 2 * sd))
 
     run = explore(world, bounds, touches, planner=planner, rng=seed, callback=cb, free_space=free_space,
-                  method=method, sigma_pos=noise[0], sigma_nor=np.deg2rad(noise[1]))
+                  method=method, sigma_pos=noise[0], sigma_nor=np.deg2rad(noise[1]), candidates=candidates)
     out["run"], out["truth"], out["T"] = run, truth, T
     return out
 

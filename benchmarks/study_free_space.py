@@ -12,7 +12,9 @@ benchmarks folder:
 
 ``--no-normals`` strips the normals from every contact (a sensor that reports where it
 touched but not the surface's direction); ``--planner random`` uses random touches, the
-same in both arms. Procedural shapes of the bench (e.g. "torus R40 r15") are accepted as
+same in both arms; ``--oracle`` replaces the free-space arm by a contacts-only one whose planner
+is told in advance which candidate touches would miss (by ray casting the hidden object),
+the most that free space could tell a planner. Procedural shapes of the bench (e.g. "torus R40 r15") are accepted as
 mesh names.
 """
 
@@ -36,6 +38,9 @@ def main(argv=None):
     ap.add_argument("--touches", type=int, default=60)
     ap.add_argument("--ref", type=int, default=30, help="contacts-only checkpoint to reach")
     ap.add_argument("--no-normals", action="store_true", help="contacts report positions only")
+    ap.add_argument("--oracle", action="store_true",
+                    help="the first arm maps without free space too, but its planner is told which candidate "
+                         "touches would miss (an upper bound on what free space can do for the planner)")
     ap.add_argument("--json", default=None, help="write the per-trial rows here")
     a = ap.parse_args(argv)
     cps = tuple(range(10, a.touches + 1, 10))
@@ -44,8 +49,9 @@ def main(argv=None):
     for name in a.meshes:
         obj = proc[name] if name in proc else quiet_load(name)
         for s in a.seeds:
-            f, n = (trial(obj, s, planner=a.planner, free_space=fs, touches=a.touches, checkpoints=cps,
-                          calib_at=(30, a.touches), normals=not a.no_normals) for fs in (True, False))
+            f, n = (trial(obj, s, planner=a.planner, free_space=fs and not a.oracle, touches=a.touches,
+                          checkpoints=cps, calib_at=(30, a.touches), normals=not a.no_normals,
+                          oracle_hits=fs and a.oracle) for fs in (True, False))
             row = dict(mesh=name, seed=s, reach=touches_to(f["chamfer"], n["chamfer"][a.ref]),
                        reach_last=touches_to(f["chamfer"], n["chamfer"][a.touches]),
                        free={k: round(v * 1e3, 2) for k, v in f["chamfer"].items()},
