@@ -215,6 +215,48 @@ def test_pose_batch_pass_matches_the_per_query_path_and_respects_budgets(objects
     assert np.all(s <= full[~done] * (1 + 1e-12))
 
 
+@pytest.mark.parametrize("method", ["exact", "fast"])
+def test_outlier_distance_caps_each_contact_and_keeps_the_budget_semantics(objects, rng, method):
+    """With ``outlier_distance`` every pair costs min(d_M^2, distance^2), in the per-query
+    path and in the compiled pass; budgets still stop a pose only once its (capped) sum
+    reaches them."""
+    from touchloc.models.proximity import _to_object_frame
+
+    obj = objects["mug"]
+    plain = ProximityModel(obj, 0.002, np.deg2rad(5))
+    capped = ProximityModel(obj, 0.002, np.deg2rad(5), outlier_distance=4.0)
+    assert capped.cost_cap == 16.0 and plain.cost_cap == np.inf and "outlier_distance=4.0" in repr(capped)
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 7, true, nor_noise=0.05)
+    from touchloc.models import GaussianDynamics
+
+    near = GaussianDynamics(0.004, 0.1).sample(np.repeat(true[None], 1500, axis=0), rng=rng)
+    poses = np.concatenate([true[None], near, random_poses(rng, 500, half=0.03)])
+    ref = np.minimum(plain.contact_costs(poses, contacts, method=method), 16.0)
+    assert 0.2 < np.mean(ref == 16.0) < 0.95  # the cap binds on some pairs, not on all
+    P, N = _to_object_frame(poses, contacts)
+    per_query = capped.query_costs(P.reshape(-1, 3), N.reshape(-1, 3), method=method).reshape(len(poses), -1)
+    np.testing.assert_allclose(per_query, ref, rtol=1e-9, atol=1e-9)
+    got, done = capped._budget_costs(poses, contacts, method)
+    assert done.all()
+    np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9)
+    full = ref.sum(axis=1)
+    budget = np.quantile(full, 0.3) * rng.uniform(0.5, 1.5, len(poses))
+    part, done = capped._budget_costs(poses, contacts, method, budget=budget)
+    assert np.all(done == (full < budget))
+    np.testing.assert_allclose(part[done], ref[done], rtol=1e-9, atol=1e-9)
+    s = part[~done].sum(axis=1)
+    assert np.all(s >= budget[~done] * (1 - 1e-12)) and np.all(s <= full[~done] * (1 + 1e-12))
+    # the log-likelihood is bounded below by K caps
+    assert np.all(capped.log_likelihood(poses, contacts) >= -0.5 * 16.0 * len(contacts) - 1e-9)
+
+
+def test_outlier_distance_must_be_a_positive_finite_number(objects):
+    for bad in (0.0, -1.0, np.inf, np.nan, "7", True):
+        with pytest.raises(ValidationError, match="outlier_distance"):
+            ProximityModel(objects["mug"], 0.002, 0.1, outlier_distance=bad)
+
+
 def test_bad_arguments_are_rejected(objects):
     obj = objects["mug"]
     with pytest.raises(ValidationError, match="sigma_pos"):

@@ -677,9 +677,10 @@ def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
 
 
 @nb.njit(inline="always", **_NB)
-def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
+def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
               adj, plo, phi, nlo, nhi, left, right, start, count, out):
-    """Costs of pose i for every contact, in order, until they reach the pose's budget.
+    """Costs of pose i for every contact, each at most ``cap``, in order, until they reach
+    the pose's budget.
 
     Returns True when every contact was evaluated (their sum is below the budget);
     otherwise the sum of out[i] is at least the budget and the remaining entries are 0.
@@ -703,9 +704,10 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, ba
             ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
             nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
         rem = b - s
+        # a capped pair never needs its search beyond the cap, and never ends the row
         c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
-                       w if use_n else 0.0, use_n, rem)
+                       w if use_n else 0.0, use_n, min(rem, cap))
         out[i, k] = c
         if c >= rem:
             return False
@@ -714,25 +716,25 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, ba
 
 
 @nb.njit(parallel=True, **_NB)
-def _pose_costs(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+def _pose_costs(mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                 plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in nb.prange(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids,
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids,
                             adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
 
 @nb.njit(**_SERIAL)
-def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
+def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
                        adj, plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in range(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, tri, nrm, lo, h, shape, base, offsets, ids,
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids,
                             adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
@@ -750,7 +752,8 @@ def _no_grid():
     return _NO_GRID
 
 
-def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None = None, budget=None):
+def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None = None, budget=None,
+               cap: float = np.inf):
     """Joint costs (m^2, as :func:`query_joint`) of world contacts seen from each pose.
 
     Parameters
@@ -767,6 +770,8 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
         one, the tree elsewhere. Without it: exact, through the tree.
     budget : (n,) float, optional
         Per pose: stop evaluating its contacts once their sum reaches this (m^2).
+    cap : float
+        Each pair's cost is at most this (m^2): beyond it a contact is an outlier.
 
     Returns
     -------
@@ -792,5 +797,5 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     if n == 0 or len(P) == 0:
         return np.zeros((n, len(P))), np.ones(n, bool)
     kernel = _pose_costs if n * len(P) >= PARALLEL_MIN else _pose_costs_serial
-    return kernel(mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, tree.tri, tree.nrm, *g,
+    return kernel(mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), tree.tri, tree.nrm, *g,
                   tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)

@@ -81,6 +81,13 @@ class ProximityModel(MeasurementModel):
         the largest extent.
     grid_normals : int
         Sampled normal directions per cell for the fast grid (default 64).
+    outlier_distance : float, optional
+        A contact farther than this (in d_M, sigmas) from every surface point is an
+        outlier: its d_M^2 is capped at ``outlier_distance**2`` (a truncated quadratic,
+        the limit of a mixture of this model with a uniform density of stray contacts).
+        Default None: no cap, Petrovskaya's model exactly. Use it when the mesh may be
+        wrong in places, such as a mesh mapped by touch (7 is a sound choice there; see
+        docs/mapping.md), or when stray contacts happen.
 
     Notes
     -----
@@ -99,7 +106,8 @@ class ProximityModel(MeasurementModel):
 
     def __init__(self, obj: MeshObject, sigma_pos: float, sigma_nor: float | None = None,
                  method: str = "auto", *, grid_cell: float | None = None,
-                 grid_margin: float | None = None, grid_normals: int = 64):
+                 grid_margin: float | None = None, grid_normals: int = 64,
+                 outlier_distance: float | None = None):
         if not isinstance(obj, MeshObject):
             raise ValidationError(f"obj must be a MeshObject, got {type(obj).__name__}")
         sigma_pos = as_positive_float(sigma_pos, "sigma_pos (m)")
@@ -117,10 +125,19 @@ class ProximityModel(MeasurementModel):
                             else as_nonnegative_float(grid_margin, "grid_margin (m)"))
         self.grid_normals = as_count(grid_normals, "grid_normals", max=100_000,
                                      why="normals sampled per grid cell family; memory grows with it")
+        self.outlier_distance = (None if outlier_distance is None
+                                 else as_positive_float(outlier_distance, "outlier_distance (sigmas)"))
 
     def __repr__(self) -> str:
-        return (f"ProximityModel({self.obj.name!r}, sigma_pos={self.sigma_pos}, "
-                f"sigma_nor={self.sigma_nor}, method={self.method!r})")
+        out = f"sigma_pos={self.sigma_pos}, sigma_nor={self.sigma_nor}, method={self.method!r}"
+        if self.outlier_distance is not None:
+            out += f", outlier_distance={self.outlier_distance}"
+        return f"ProximityModel({self.obj.name!r}, {out})"
+
+    @property
+    def cost_cap(self) -> float:
+        """The largest d_M^2 a contact can cost (``outlier_distance**2``; inf without it)."""
+        return np.inf if self.outlier_distance is None else self.outlier_distance**2
 
     # -- internals -------------------------------------------------------------------
     def _weight(self, use_normals: bool) -> float:
@@ -170,7 +187,7 @@ class ProximityModel(MeasurementModel):
             _, c = K.query_grid(self._grid(w), self.obj.bvh(w), P, N)
         else:
             raise ValidationError(f"method must be one of {METHODS}, got {method!r}")
-        return c / self.sigma_pos**2
+        return np.minimum(c / self.sigma_pos**2, self.cost_cap)
 
     def contact_costs(self, poses, contacts: Contacts, *, method: str | None = None) -> np.ndarray:
         """Squared Mahalanobis distances d_M^2 per pose and contact.
@@ -217,7 +234,8 @@ class ProximityModel(MeasurementModel):
         s2 = self.sigma_pos**2
         grid = self._grid(w) if method == "fast" else None
         c, done = K.pose_costs(self.obj.bvh(w), poses, contacts.points, contacts.normals if use_n else None, w,
-                               grid=grid, budget=None if budget is None else np.asarray(budget) * s2)
+                               grid=grid, budget=None if budget is None else np.asarray(budget) * s2,
+                               cap=self.cost_cap * s2)
         return c / s2, done
 
     def log_likelihood(self, poses, contacts: Contacts = None, temperature: float = 1.0) -> np.ndarray:
