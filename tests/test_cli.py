@@ -250,6 +250,26 @@ def test_save_load_json_round_trip(mug_csv, tmp_path):
     assert np.allclose(json.loads(r2.stdout)["map_pose"]["matrix"], M)
 
 
+def test_outlier_distance_keeps_a_stray_contact_from_moving_the_pose(mug_csv, tmp_path):
+    m, _, T = mug_csv
+    c = Contacts.from_csv(m)
+    stray = tmp_path / "stray.csv"
+    far = c.points[:1] + np.array([[0.05, 0.0, 0.0]])      # 5 cm from the mug: no surface explains it
+    Contacts(np.vstack([c.points, far]), np.vstack([c.normals, c.normals[:1]])).to_csv(stray)
+
+    def error(*extra):
+        r = touchloc("localize", "--mesh", "mug", "--contacts", stray, "--method", "hf", *PLANAR, "--json",
+                     "--save", tmp_path / "b.npz", *extra)
+        assert r.returncode == 0, r.stderr
+        return np.linalg.norm(np.array(json.loads(r.stdout)["map_pose"]["matrix"])[:2, 3] - T[:2, 3])
+
+    capped, plain = error("--outlier-distance", "5"), error()
+    assert load_belief(tmp_path / "b.npz")[0].info["model"]["outlier_distance"] is None
+    assert capped < 0.0015 < plain
+    r = touchloc("localize", "--mesh", "mug", "--contacts", m, "--outlier-distance", "-1")
+    assert r.returncode != 0 and "outlier_distance" in r.stderr and "Traceback" not in r.stderr
+
+
 # -- meshes and identify -------------------------------------------------------------------
 def test_load_mesh_scales_files_and_bundled_names(tmp_path, objects):
     from touchloc.data import mesh_path

@@ -43,6 +43,9 @@ def register(sub):
     p.add_argument("--rotation", choices=("full", "yaw", "planar"), default="full")
     p.add_argument("--sigma-pos", type=float, default=0.002, help="position noise (m)")
     p.add_argument("--sigma-nor", type=float, default=0.1, help="normal noise; <= 0 ignores normals")
+    p.add_argument("--outlier-distance", type=float, default=None, metavar="SIGMAS",
+                   help="cap each contact's cost at this many sigmas (stray contacts, or a mesh mapped by "
+                        "touch: 7); default: no cap")
     p.add_argument("--particles", type=int, default=20000, help="particles for pf/apf/mpf")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", help="write a figure of mesh, contacts and particles (PNG)")
@@ -66,6 +69,8 @@ def register(sub):
     q.add_argument("--rotation", choices=("full", "yaw", "planar"), default="full")
     q.add_argument("--sigma-pos", type=float, default=0.002)
     q.add_argument("--sigma-nor", type=float, default=0.1)
+    q.add_argument("--outlier-distance", type=float, default=None, metavar="SIGMAS",
+                   help="cap each contact's cost at this many sigmas; default: no cap")
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--json", action="store_true", help="print the posterior as JSON")
     q.set_defaults(func=run_identify)
@@ -74,7 +79,8 @@ def register(sub):
 def _model(obj, args):
     from ..models import ProximityModel
 
-    return ProximityModel(obj, args.sigma_pos, args.sigma_nor if args.sigma_nor > 0 else None)
+    return ProximityModel(obj, args.sigma_pos, args.sigma_nor if args.sigma_nor > 0 else None,
+                          outlier_distance=args.outlier_distance)
 
 
 def run_localize(args) -> int:

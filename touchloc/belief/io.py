@@ -85,6 +85,7 @@ def save_belief(path, belief: ParticleBelief, *, contacts: Contacts | None = Non
     if model is not None:
         meta["model"] = {"class": type(model).__name__, "sigma_pos": getattr(model, "sigma_pos", None),
                          "sigma_nor": getattr(model, "sigma_nor", None),
+                         "outlier_distance": getattr(model, "outlier_distance", None),
                          "mesh": getattr(getattr(model, "obj", None), "name", None)}
     try:
         out["meta"] = np.str_(json.dumps(meta))
