@@ -34,7 +34,8 @@ def test_save_load_round_trip(tmp_path, objects, rng, region):
     if region.rotation == "fixed":
         assert np.array_equal(b2.region.fixed_rotation, region.fixed_rotation)
     assert np.array_equal(c2.points, c.points) and np.allclose(c2.normals, c.normals, atol=1e-15)
-    assert b2.info["model"] == {"class": "ProximityModel", "sigma_pos": 0.002, "sigma_nor": 0.1, "mesh": "can"}
+    assert b2.info["model"] == {"class": "ProximityModel", "sigma_pos": 0.002, "sigma_nor": 0.1,
+                                "outlier_distance": None, "mesh": "can"}
     assert b2.info["method"] == "ss"
     # plain arrays only: numpy reads it without pickles
     with np.load(path, allow_pickle=False) as z:

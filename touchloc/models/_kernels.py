@@ -32,6 +32,7 @@ import numba as nb
 import numpy as np
 
 from .._cache import numba_cache_enabled
+from .._util import progress
 
 _LEAF = 4
 _STACK = 128
@@ -580,7 +581,11 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
             # the sampled normals, plus a zero "normal" whose winner is the closest face in position
             dirs = np.vstack([fibonacci_sphere(n_normals), np.zeros((1, 3))])
             rows = np.empty((len(centres), len(dirs)), np.int64)
-            _grid_lists_joint(*args, centres, dirs, float(w), rows)
+            # in slices, so that a long build (a dense mesh: tens of seconds) shows its progress
+            cuts = np.linspace(0, len(centres), min(32, len(centres)) + 1).astype(np.int64)
+            for a, b in progress(list(zip(cuts[:-1], cuts[1:])), desc=f"likelihood grid, level {len(los) + 1} of "
+                                 f"{len(levels)} (built once per mesh, then kept on disk)"):
+                _grid_lists_joint(*args, centres[a:b], dirs, float(w), rows[a:b])
             rows.sort(axis=1)
             keep = np.ones_like(rows, dtype=bool)
             keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
