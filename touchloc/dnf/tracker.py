@@ -52,9 +52,18 @@ tracking (fast)
     has built up. By default (``rate_mode="mean"``, an addition to seed 000) the rate is
     the correction accumulated so far per radian of odometry turned, a least-squares fit
     ``correction = rate * D`` over the odometry ``D`` turned since the first sample with a
-    prior of ``rate_prior`` radians at rate 0; ``rate_mode="integral"`` changes it by
-    ``-rate_gain * error`` per read-out instead (the previous default; it learnt the rate
-    about half as fast).
+    prior of ``rate_prior`` radians at rate ``rate_prior_mean`` (0.05: seed 000, II-B,
+    reports a systematic under-estimate, so the prior expects one rather than none);
+    ``rate_mode="integral"`` changes it by ``-rate_gain * error`` per read-out instead (it
+    learnt the rate about half as fast).
+
+The two pathways meet once more (an addition to seed 000): the match field also drives the
+map field (``match_to_map``), so a detected side that matches a remembered one refreshes
+the memory at the remembered place rather than beside it. A side written once is kept up
+by later landings, and a tracking error of a few degrees no longer writes a second peak
+next to the first. The drive needs a detection nearby (the loop memory -> match -> map ->
+memory must not run without contact) and is withheld where the hand field is active or
+close to threshold (a round object's sliding normal must not keep a stray peak alive).
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
@@ -69,7 +78,7 @@ import numpy as np
 
 from .._validate import as_bool, as_count, as_float, as_instance
 from ..errors import ValidationError
-from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve,
+from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, sigmoid,
                      periodic_distance, site_angles)
 
 __all__ = ["TrackerParams", "OrientationTracker", "population_code", "as_angles", "as_odometry"]
@@ -194,6 +203,10 @@ class TrackerParams:
     #: Where the hand field is active (blurred by ``match_width``) this drive is
     #: withheld, so that a round object's sliding normal cannot keep a stray peak alive
     match_to_map: float = 4.0
+    #: the match drive is withheld where the hand field's activation is within this margin
+    #: of its threshold (or above), blurred by ``match_width``: more cautious than the hand
+    #: field's own inhibition, since the match drive feeds the memory back into itself
+    hand_gate_margin: float = 1.0
     memory_to_map: float = 2.0
     memory_tau: float = 1.0
     memory_build: float = 0.2
@@ -428,10 +441,13 @@ class OrientationTracker:
         broad = circular_convolve(f_s, self._match_blur_fft, self.n_sites)
         f_match = self.match.step(p.surface_to_match * np.minimum(broad, 1.0) + p.memory_to_match * P)
         if p.match_to_map:
-            m = p.match_to_map * f_match
+            # only while a detected side is near: memory -> match -> map -> memory must not
+            # sustain itself without contact
+            m = p.match_to_map * f_match * np.minimum(broad, 1.0)
             if f_h is not None:
-                # withheld near a contact that holds still against the hand
-                m = m * (1.0 - np.clip(circular_convolve(f_h, self._match_blur_fft, self.n_sites), 0.0, 1.0))
+                # withheld near a contact that holds (or nearly holds) still against the hand
+                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+                m = m * (1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, self.n_sites), 0.0, 1.0))
             drive = drive + m
         f_m = self.map.step(drive)
         self.trace.step(f_m)
