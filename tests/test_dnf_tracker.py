@@ -51,12 +51,28 @@ def _regular_samples(n_sides, n_samples, offset=0.0, rng=None):
 
 
 def test_exact_odometry_builds_n_sides_and_needs_no_correction():
-    tr = OrientationTracker()
+    # without the prior's expected under-estimate, exact odometry is left as it is
+    tr = OrientationTracker(rate_prior_mean=0.0)
     for a, odo in _regular_samples(6, 300, rng=1):
         tr.step(a, odo)
     assert count_surfaces(tr.memory) == 6
     assert abs(tr.correction) < 2 * DEG
     assert 0.5 < tr.memory.max() <= 1.0
+
+
+def test_the_rate_prior_gives_way_to_exact_odometry():
+    # the default prior expects a 5 % under-estimate; with exact odometry the learnt rate
+    # must return to about 0, leaving only the frame offset taken up meanwhile (5 % of
+    # about the first radian: 3 deg)
+    tr = OrientationTracker()
+    assert tr.rate == pytest.approx(0.05)
+    for a, odo in _regular_samples(6, 300, rng=1):
+        tr.step(a, odo)
+    assert count_surfaces(tr.memory) == 6
+    assert abs(tr.rate) < 0.005
+    assert abs(tr.correction) < 5 * DEG
+    # the uncorrected memory has no rate at all: it follows the odometry
+    assert OrientationTracker(correct=False).rate == 0.0
 
 
 def test_correction_removes_an_odometry_jump():
