@@ -159,3 +159,39 @@ def test_coverage_counts_symmetric_particles(meshes):
     assert credible_level(b, T, can, symmetry=trivial) == float("inf")
     with pytest.raises(ValidationError):
         belief_coverage(b, T, can, levels=(0.0,))
+
+
+def test_canonical_poses_are_one_member_of_each_class(meshes):
+    """A canonical pose has no turn about the axis, places the surface as the pose it
+    stands for (same centre in the world, a symmetry apart), and is its own canonical form."""
+    obj = meshes["can"]
+    sym = obj.symmetries()
+    rng = np.random.default_rng(3)
+    R = Rotation.random(200, random_state=4)
+    t = rng.normal(scale=0.1, size=(200, 3))
+    q, tc = sym.canonical(R.as_quat(), t)
+    assert np.all(q[:, 3] >= 0) and np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    assert np.abs(q[:, :3] @ sym.axis).max() < 1e-9               # no twist about the axis
+    Rc = Rotation.from_quat(q).as_matrix()
+    rel = np.einsum("nji,njk->nik", R.as_matrix(), Rc)            # R^T R_c: a turn about the axis
+    assert np.abs(rel @ sym.axis - sym.axis).max() < 1e-9
+    np.testing.assert_allclose(R.as_matrix() @ sym.center + t, Rc @ sym.center + tc, atol=1e-12)
+    q2, t2 = sym.canonical(q, tc)
+    np.testing.assert_allclose(q2, q, atol=1e-12)
+    np.testing.assert_allclose(t2, tc, atol=1e-12)
+    # two poses a turn about the axis apart have the same canonical form
+    g = sym.transforms[0].copy()
+    g[:3, :3] = Rotation.from_rotvec(1.3 * sym.axis).as_matrix()
+    g[:3, 3] = sym.center - g[:3, :3] @ sym.center
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R.as_matrix()[0], t[0]
+    a, b = sym.canonical_poses(np.stack([T, T @ g]))
+    np.testing.assert_allclose(a, b, atol=1e-9)
+    # finite groups are left alone; a sphere's rotations all become the identity
+    box = meshes["cereal"].symmetries()
+    np.testing.assert_allclose(box.canonical(q, tc)[0], q)
+    ball = MeshObject(trimesh.creation.icosphere(subdivisions=3, radius=0.05)).symmetries()
+    assert ball.sphere
+    qs, ts = ball.canonical(R.as_quat(), t)
+    np.testing.assert_allclose(np.abs(qs[:, 3]), 1.0, atol=1e-12)
+    np.testing.assert_allclose(R.as_matrix() @ ball.center + t, ball.center + ts, atol=1e-12)

@@ -28,7 +28,8 @@ def log_evidence(model, contacts, region: PoseRegion, *, rng=None, **ss_kwargs):
     plus the model's ``log_normalizer`` (which makes likelihoods of different objects
     comparable as densities over measurements). Returns (log evidence, belief).
     """
-    ss = ScalingSeries(model, rng=rng, **ss_kwargs)
+    # every pose, not one per class of symmetric poses: the evidence integrates over all of them
+    ss = ScalingSeries(model, rng=rng, **{**ss_kwargs, "symmetry": None})
     belief = ss.localize(contacts, region)
     reg = belief.region
     ll = belief.info["log_likelihood"]

@@ -15,6 +15,7 @@ from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_nam
 from ..errors import ValidationError
 from ..geometry import make_poses
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
+from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
 from ._cover import accept_draws
@@ -100,6 +101,17 @@ class ScalingSeries:
         Rotation scale of the pose metric (m); default: the object's radius.
     progress : bool, optional
         tqdm bar over the scales (default: when stderr is a terminal).
+    symmetry : "auto", Symmetry or None
+        A continuous symmetry of the object (a body of revolution, a sphere) makes every
+        turn about it explain the contacts alike: the posterior is a whole orbit, and
+        covering it particle by particle fills the cap at every scale. With a symmetry
+        (``"auto"``: ``model.obj.symmetries()`` when it is continuous and the region's
+        rotation is ``"full"``) every particle is replaced by the one pose of its class
+        without a turn about the axis (:meth:`~touchloc.models.symmetry.Symmetry.canonical`),
+        so the search covers the poses that place the surface differently and nothing
+        else. The belief then holds these representatives (``info["symmetry"]``); any
+        member of a class is as good (symmetric errors such as ADD-S do not tell them
+        apart). None searches every pose. Evidence estimates (:func:`identify`) use None.
     rng : None, int or Generator
     """
 
@@ -107,8 +119,12 @@ class ScalingSeries:
                  n_initial: int = 2000, max_particles: int = 6000, prune: str = "threshold",
                  prune_ratio: float = 1e-3, anneal: str | float = "alg1", final_moves: int = 3,
                  n_posterior: int = 500, final_stages: int = 60, posterior_model=None, dynamics=None,
-                 rho: float | None = None, progress: bool | None = None, rng=None):
+                 rho: float | None = None, progress: bool | None = None, symmetry="auto", rng=None):
         self.model = check_model(model)
+        if not (symmetry is None or isinstance(symmetry, Symmetry) or (isinstance(symmetry, str)
+                                                                       and symmetry == "auto")):
+            raise ValidationError(f"symmetry must be 'auto', a Symmetry or None, got {symmetry!r}")
+        self.symmetry = symmetry
         self.posterior_model = None if posterior_model is None else check_model(posterior_model)
         if self.posterior_model is not None and self.posterior_model.obj is not self.model.obj:
             raise ValidationError("posterior_model must describe the same MeshObject as model")
@@ -156,7 +172,27 @@ class ScalingSeries:
         self._pending_predict = False
 
     # -- Alg. 1 building blocks -------------------------------------------------------
-    def _even_density_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float):
+    def _symmetry_for(self, region: PoseRegion):
+        """The continuous symmetry the search uses in ``region``, or None."""
+        sym = self.symmetry
+        if sym is None or region.rotation != "full":
+            return None
+        if isinstance(sym, str):
+            obj = getattr(self.model, "obj", None)
+            if obj is None or not callable(getattr(obj, "symmetries", None)):
+                return None
+            sym = obj.symmetries()
+        return sym if sym.continuous else None
+
+    def _canonical(self, region: PoseRegion, sym, X):
+        """Canonical representatives of poses X that stay inside ``region``."""
+        if sym is None:
+            return X
+        Y = sym.canonical_poses(X)
+        inside = region.contains(Y)
+        return Y[inside] if np.any(inside) else X
+
+    def _even_density_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float, sym=None):
         """Sample M particles per delta-neighbourhood of the union of delta_prev balls.
 
         Rejection sampling: draw from the ball of a random centre, keep a draw with
@@ -172,7 +208,7 @@ class ScalingSeries:
         rng = self.rng
         n_c = len(centers)
         pick = self._pick_centres(n_c, dim, delta_prev, delta)
-        draws = _Draws(region, centers, pick, delta_prev, rng)
+        draws = _Draws(region, centers, pick, delta_prev, rng, sym)
         keep = accept_draws(draws.centres_emb, draws.emb, pick, delta_prev, rng, mask=draws.inside,
                             flip_dims=4 if region.rotation == "full" else 0)
         idx, volume = self._thin(keep, n_c, dim, delta_prev, delta)
@@ -279,7 +315,7 @@ class ScalingSeries:
         return poses[idx]
 
     # -- final stage: from a cover to a posterior sample ---------------------------------
-    def _posterior(self, cover: ParticleBelief, contacts, region: PoseRegion, log_prior) -> ParticleBelief:
+    def _posterior(self, cover: ParticleBelief, contacts, region: PoseRegion, log_prior, sym=None) -> ParticleBelief:
         """The posterior stage after the last scale (see ``final_moves``)."""
         from .smc import temper
 
@@ -296,6 +332,10 @@ class ScalingSeries:
         l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
         P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
                                               moves=self.final_moves, max_stages=self.final_stages, rng=self.rng)
+        if sym is not None:
+            # the moves wander along the symmetry, where the likelihood is flat: back to the
+            # representatives (the same surfaces, so the same likelihoods)
+            P = sym.canonical_poses(P)
         out = ParticleBelief(P, None, region=region, resolution=cover.resolution, info=dict(cover.info),
                              degenerate=cover.degenerate)
         out.info.update(cover=cover, map_pose=P[int(np.argmax(l_old + l_new))].copy(), final_stages=stages,
@@ -317,10 +357,11 @@ class ScalingSeries:
         if dim == 0:
             raise ValidationError("the region has no free degree of freedom")
         d_star = self.delta_final
+        sym = self._symmetry_for(region)
         if centers is None:
             delta0 = region.radius()
             n0 = max(self.n_initial, int(self.m * 2))
-            X = region.sample(n0, rng=self.rng)
+            X = self._canonical(region, sym, region.sample(n0, rng=self.rng))
             first = True
             volume = region.volume()
         else:
@@ -344,7 +385,7 @@ class ScalingSeries:
             if first:
                 first = False  # the initial uniform draw is the cover of V0
             else:
-                X, volume = self._even_density_cover(region, X, delta, new_delta)
+                X, volume = self._even_density_cover(region, X, delta, new_delta, sym)
             ll = self._annealed_loglik(X, contacts, tau, prune=not last)
             lw = ll.copy()
             if last and log_prior is not None:
@@ -358,7 +399,8 @@ class ScalingSeries:
                                    log_likelihood=ll)
                 flag_degenerate(belief, float(ll.max()), contacts)
                 if self.final_moves > 0:
-                    belief = self._posterior(belief, contacts, region, log_prior)
+                    belief = self._posterior(belief, contacts, region, log_prior, sym)
+                belief.info["symmetry"] = None if sym is None else ("sphere" if sym.sphere else "axis")
                 yield ScaleStep(n, new_delta, tau, n_part, n_part, belief, time.perf_counter() - t0)
                 return
             X = self._prune(X, lw)
@@ -492,7 +534,7 @@ class _Draws:
     the candidates finally kept are turned into (4, 4) matrices.
     """
 
-    def __init__(self, region: PoseRegion, centers, pick, r: float, rng):
+    def __init__(self, region: PoseRegion, centers, pick, r: float, rng, sym=None):
         self.region = region
         if region.rotation != "full":
             self._poses = region.perturb(centers[pick], r, rng=rng, ball=True)
@@ -513,6 +555,8 @@ class _Draws:
         t[:, free] += v[:, :k]
         q = _quat_mul(_quat_from_rotvec(v[:, k:] / rho), qc[pick])
         q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+        if sym is not None:
+            q, t = sym.canonical(q, t)
         self._t, self._q = t, q
         self.inside = np.all(np.abs(t - region.center) <= region.half_extent + 1e-9, axis=1)
         self.centres_emb = np.concatenate([centers[:, :3, 3][:, free], 2.0 * rho * qc], axis=1)

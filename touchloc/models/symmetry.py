@@ -80,6 +80,66 @@ class Symmetry:
         out[:, 3, 3] = 1.0
         return out
 
+    def canonical(self, quat_xyzw, t):
+        """One representative per class of poses that place the surface alike.
+
+        For a continuous symmetry, ``T`` and ``T g`` (``g`` a symmetry) are the same pose
+        of the surface; this returns, for every pose, the member of its class whose
+        rotation has no turn about the symmetry axis (the swing of a swing-twist
+        decomposition about ``axis``; for a sphere, the identity), with the translation
+        that keeps the world position of ``center``. Finite groups are returned as they
+        are (they cost a constant factor, not a dimension).
+
+        Parameters
+        ----------
+        quat_xyzw : (N, 4) float
+            Unit quaternions of the rotations, scalar last.
+        t : (N, 3) float
+            Translations.
+
+        Returns
+        -------
+        quat_xyzw, t : (N, 4), (N, 3) float
+            Canonical poses (scalar part >= 0).
+        """
+        q = np.array(quat_xyzw, dtype=float, copy=True).reshape(-1, 4)
+        t = np.array(t, dtype=float, copy=True).reshape(-1, 3)
+        if not self.continuous:
+            return q, t
+        c = self.center
+        if self.sphere:
+            qc = np.zeros_like(q)
+            qc[:, 3] = 1.0
+        else:
+            a = self.axis
+            # twist about a: the quaternion's projection on a, normalised; q = swing twist
+            p = q[:, :3] @ a
+            n = np.hypot(p, q[:, 3])
+            ok = n > 1e-9          # a half-turn swing leaves the twist undefined: keep the pose
+            tw = np.zeros_like(q)
+            tw[:, :3] = np.where(ok, p / np.where(ok, n, 1.0), 0.0)[:, None] * a
+            tw[:, 3] = np.where(ok, q[:, 3] / np.where(ok, n, 1.0), 1.0)
+            tw[:, :3] *= -1.0      # its inverse
+            qc = _qmul(q, tw)
+        qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
+        # the world position of the centre stays: R c + t = R_c c + t_c
+        R = Rotation.from_quat(q).as_matrix()
+        Rc = Rotation.from_quat(qc).as_matrix()
+        t = t + R @ c - Rc @ c
+        return qc, t
+
+    def canonical_poses(self, poses) -> np.ndarray:
+        """:meth:`canonical` for (N, 4, 4) poses."""
+        P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        if not self.continuous:
+            return P.copy()
+        q, t = self.canonical(Rotation.from_matrix(P[:, :3, :3]).as_quat(), P[:, :3, 3])
+        out = np.zeros_like(P)
+        out[:, :3, :3] = Rotation.from_quat(q).as_matrix()
+        out[:, :3, 3] = t
+        out[:, 3, 3] = 1.0
+        return out
+
     def rotation_error(self, R_est, R_true) -> np.ndarray:
         """Smallest rotation angle (rad) from ``R_true`` to ``R_est`` over the group.
 
@@ -108,6 +168,14 @@ class Symmetry:
                 ang = np.arccos(np.clip((np.trace(m, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
             best = np.minimum(best, ang)
         return best
+
+
+def _qmul(p, q):
+    """Hamilton products p q of (N, 4) quaternions (x, y, z, w): the rotation q, then p."""
+    pv, pw = p[:, :3], p[:, 3:]
+    qv, qw = q[:, :3], q[:, 3:]
+    return np.concatenate([pw * qv + qw * pv + np.cross(pv, qv), pw * qw - np.sum(pv * qv, axis=1, keepdims=True)],
+                          axis=1)
 
 
 def surface_moments(obj):
