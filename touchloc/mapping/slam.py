@@ -31,9 +31,18 @@ that comes with an odometry the particles are spread to at least this covariance
 the explorer plans with it (:func:`touchloc.mapping.explore`), so that a turn that grows
 uncertain sends the fingers to the feature that shows it.
 
+In hand, while the object touched so far is mostly a surface of revolution about the
+odometry's axis (few contacts have a measured normal with a lever about it), the filter
+estimates the *turn about that axis apart* (:meth:`TactileSLAM._turn_aware`): only
+contacts whose position term changes markedly along the turn (a mapped handle) move it,
+on a grid over the turn with a prior wide enough for an odometry's accumulated bias; every
+other term is scored at the particles' mean turn. A correction is spread back over the
+steps that did not show the turn, and the smoother holds those steps' turns.
+
 Optionally, an *odometry scale*: a hand's reported turns are often off by a constant
 factor; the map's correction of each predicted turn, summed with a small gain, estimates
-the factor, from the steps whose contacts show the turn (see :meth:`TactileSLAM._learn_scale`).
+the factor, from the steps whose contacts show the turn (see :meth:`TactileSLAM._learn_scale`;
+with the turn estimated apart, a Kalman update from each correction and the turn made unseen).
 
 Why a filter and a smoother on one shared map: the pose posterior after one contact is far
 from Gaussian (a contact on a face leaves the pose free to slide along it), and a few
@@ -662,6 +671,13 @@ class TactileSLAM:
         :meth:`_update_cov`; a mug's body shows nothing), a small gain, and a clipped
         range. A correction counts against all the turn made since the last step that
         showed one, not this step's alone.
+
+        With the turn estimated apart (:meth:`_turn_aware`), a step shows the turn when
+        some contact moved it, and the update is a Kalman one: the correction c after an
+        unseen turn U measures the scale's relative error e as ``c = e U``, with the
+        odometry's noise over those steps and the grid posterior's variance (at least
+        ``_SCALE_MEAS_SD``) as its noise, from a prior of ``_SCALE_PRIOR_SD``; a correction
+        beyond three standard deviations of that is ignored.
         """
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
