@@ -404,7 +404,10 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
             scored = flat if slam is None else [r.touch for r in transform_results(
                 [TouchResult(c, 0.0, None) for c in flat], np.linalg.inv(slam.predicted_pose()))]
             if slam is not None and slam.turning:
-                info = _slam_information(smap, scored, owner, slam.pose_covariance())
+                # the tracked covariance, and the turn made unseen since the contacts last showed it
+                # (an odometry's bias, which the motion model does not know; zero for a box)
+                cov = slam.pose_covariance() + slam._unseen_turn_covariance()
+                info = _slam_information(smap, scored, owner, cov)
             else:
                 info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
             k = int(np.argmax(info))

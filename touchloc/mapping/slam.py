@@ -31,9 +31,18 @@ that comes with an odometry the particles are spread to at least this covariance
 the explorer plans with it (:func:`touchloc.mapping.explore`), so that a turn that grows
 uncertain sends the fingers to the feature that shows it.
 
+In hand, while the object touched so far is mostly a surface of revolution about the
+odometry's axis (few contacts have a measured normal with a lever about it), the filter
+estimates the *turn about that axis apart* (:meth:`TactileSLAM._turn_aware`): only
+contacts whose position term changes markedly along the turn (a mapped handle) move it,
+on a grid over the turn with a prior wide enough for an odometry's accumulated bias; every
+other term is scored at the particles' mean turn. A correction is spread back over the
+steps that did not show the turn, and the smoother holds those steps' turns.
+
 Optionally, an *odometry scale*: a hand's reported turns are often off by a constant
 factor; the map's correction of each predicted turn, summed with a small gain, estimates
-the factor, from the steps whose contacts show the turn (see :meth:`TactileSLAM._learn_scale`).
+the factor, from the steps whose contacts show the turn (see :meth:`TactileSLAM._learn_scale`;
+with the turn estimated apart, a Kalman update from each correction and the turn made unseen).
 
 Why a filter and a smoother on one shared map: the pose posterior after one contact is far
 from Gaussian (a contact on a face leaves the pose free to slide along it), and a few
@@ -180,6 +189,13 @@ class TactileSLAM:
         self._cov = np.zeros((7, 7))
         self._cov[6, 6] = self._SCALE_PRIOR_SD**2 if self.learn_odometry_scale else 0.0
         self._unseen_turn = 0.0
+        self._unseen_steps = 0
+        self._scale_var = self._SCALE_PRIOR_SD**2
+        self._turn_shown = None
+        self._turn_draw = None
+        self._turn_unseen = 0.0
+        self._lever_count = np.zeros(2, dtype=np.int64)
+        self._turn_post_var = 0.0
 
     @property
     def pose(self) -> np.ndarray:
@@ -221,6 +237,25 @@ class TactileSLAM:
             sig = self.odometry_noise if self._last_odometry is not None else self.motion
             C = self._predict_cov(C, sig, self._last_odometry)
         return 0.5 * (C[:6, :6] + C[:6, :6].T)
+
+    def _unseen_turn_covariance(self) -> np.ndarray:
+        """(6, 6) the covariance, at the next update, of the turn made since the contacts last
+        showed it (``_turn_aware``), at an odometry scale error of ``_TURN_SCALE_ERROR``: a
+        bias the motion model does not know. Added to :meth:`pose_covariance` by the
+        explorer, so that a turn long unseen sends the hand to the feature that shows it."""
+        C = np.zeros((6, 6))
+        D = self._last_odometry
+        if not self._PLAN_UNSEEN or D is None or self._turn_unseen <= 0:
+            return C
+        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        th = float(np.linalg.norm(w))
+        if th < 1e-6:
+            return C
+        T0 = self.trajectory[-1]
+        a = T0[:3, :3].T @ (w / th)
+        q = np.linalg.lstsq(np.eye(3) - D[:3, :3], D[:3, 3], rcond=None)[0]
+        u = np.concatenate([-np.cross(a, T0[:3, :3].T @ (q - T0[:3, 3])), a])
+        return (self._TURN_SCALE_ERROR * (self._turn_unseen + th)) ** 2 * np.outer(u, u)
 
     def _masks(self, R0):
         mt = np.diag([1.0, 1.0, 0.0]) if self.planar else np.eye(3)
@@ -292,6 +327,171 @@ class TactileSLAM:
         out[:, :3, :3] = P[:, :3, :3] @ Rotation.from_rotvec(E[:, 3:]).as_matrix()
         return out
 
+    # in-hand turns (see _turn_aware)
+    _TURN_AWARE = True
+    _TURN_MIN_RANGE = 8.0
+    _TURN_LEVER_SIGMAS = 3.0
+    _TURN_REVOLUTION_SHARE = 0.25
+    _TURN_MIN_CONTACTS = 9
+    _TURN_RANGE = np.deg2rad(45.0)
+    _TURN_STEP = np.deg2rad(1.0)
+    _TURN_OUTLIER = 0.05
+    _TURN_MAP_SD = 0.002
+    _TURN_SCALE_ERROR = 0.1
+    _PLAN_UNSEEN = True
+    _TURN_BACKFILL = True
+    _SMOOTH_FIX_TURNS = True
+
+    @staticmethod
+    def _twists(P, T0):
+        """(N, 6) each pose of ``P`` as ``T0 exp(xi)``: translation and rotation vector, object frame."""
+        R0, t0 = T0[:3, :3], T0[:3, 3]
+        return np.concatenate([(P[:, :3, 3] - t0) @ R0,
+                               Rotation.from_matrix(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
+
+    @staticmethod
+    def _from_twists(T0, xi):
+        """(N, 4, 4) the poses ``T0 exp(xi)`` of :meth:`_twists`."""
+        out = np.repeat(T0[None], len(xi), axis=0)
+        out[:, :3, 3] = T0[:3, 3] + xi[:, :3] @ T0[:3, :3].T
+        out[:, :3, :3] = T0[:3, :3] @ Rotation.from_rotvec(xi[:, 3:]).as_matrix()
+        return out
+
+    def _turn_aware(self, P, results, D):
+        """The update's likelihood for a turn the hand reports: ``(particles, (N,) log-likelihood)``,
+        or None to score the usual way.
+
+        Used while the object, as touched so far, is mostly a surface of revolution about
+        the odometry's axis (a mug's body, a can): no more than ``_TURN_REVOLUTION_SHARE``
+        of its contacts (after the first ``_TURN_MIN_CONTACTS``) have a measured normal
+        whose lever about the axis exceeds ``_TURN_LEVER_SIGMAS`` times what the normal's
+        noise lends any contact (sigma_nor times its distance from the axis). On a box
+        most contacts do, every touch shows the turn, and the usual likelihood is sound.
+
+        The turn about the axis is then estimated apart from the rest of the pose, on a
+        grid of turns about the axis through the particles' mean, from the contacts'
+        position terms alone (each at the map's own standard deviation where the turn
+        takes it, plus ``_TURN_MAP_SD`` for the map's own errors: a body mapped at slightly
+        wrong poses is not round to better than a millimetre or two). A contact takes part
+        only where its term changes along the grid by ``_TURN_MIN_RANGE`` nats or more (on
+        a mapped handle: 10-30; on a mug's body: 1-4 for nine in ten). The normals' terms,
+        the free space and every other contact are scored with each particle's turn set
+        to the mean's, so they cannot move the turn: the map's normals on a body not yet
+        round lend it a lever about the axis that the body does not have.
+
+        The particles' turns are then drawn anew: from the grid's posterior when some
+        contact takes part, with the particles' spread of the turn (at least the tracked
+        covariance's) as the prior, widened by a uniform share ``_TURN_OUTLIER`` over the
+        turn that an odometry off by ``_TURN_SCALE_ERROR`` could have made unseen since the
+        contacts last showed it (a biased odometry's error is not Gaussian), so that a
+        handle touched again after many turns of drift corrects it in one step; else from
+        the particles' own turns. Either way they are dealt out again after resampling
+        (see :meth:`update`), so that resampling on the other components cannot drag the
+        turn with it.
+        """
+        hits = [r.contact for r in results if r.contact is not None]
+        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        if float(np.linalg.norm(w)) < 1e-6 or self.map.method != "gpis":
+            return None
+        c = Contacts.concatenate(hits) if hits else None
+        a_w = w / np.linalg.norm(w)
+        q = np.linalg.lstsq(np.eye(3) - D[:3, :3], D[:3, 3], rcond=None)[0]
+        if c is not None and c.normals is not None:
+            r = c.points - q
+            lever = np.cross(r, c.normals) @ a_w
+            rho = np.linalg.norm(r - np.outer(r @ a_w, a_w), axis=1)
+            shows = np.abs(lever) > self._TURN_LEVER_SIGMAS * self.map.sigma_nor * rho
+            self._lever_count += np.array([int(shows.sum()), len(shows)])
+        n_lev, n_all = self._lever_count
+        if n_all >= self._TURN_MIN_CONTACTS and n_lev > self._TURN_REVOLUTION_SHARE * n_all:
+            return None
+        T0 = self._mean_pose(P)
+        a = T0[:3, :3].T @ a_w
+        qo = T0[:3, :3].T @ (q - T0[:3, 3])
+        u = np.concatenate([-np.cross(a, qo), a])
+        xi = self._twists(P, T0)
+        d = xi[:, 3:] @ a
+        base = xi - d[:, None] * u
+        Pb = self._from_twists(T0, base)
+        N = len(P)
+        pos, nor = self._contact_terms(Pb, c)
+        wt = np.exp(self.log_w - logsumexp(self.log_w))
+        m = float(wt @ d)
+        sd = max(float(np.sqrt(wt @ (d - m) ** 2)), float(np.sqrt(max(u @ self._cov[:6, :6] @ u, 0.0))),
+                 self.odometry_noise[1])
+        self._turn_unseen += float(np.linalg.norm(w))
+        # the turns considered: the prior's spread, and what an odometry whose scale is off by
+        # _TURN_SCALE_ERROR could have turned the object unseen since the contacts last showed the turn
+        R = min(self._TURN_RANGE, max(3 * sd, self._TURN_SCALE_ERROR * self._turn_unseen))
+        grid = m + np.arange(-R, R + 1e-9, self._TURN_STEP)
+        use = np.zeros(pos.shape[1], bool)
+        if c is not None and len(c):
+            gpos = self._contact_terms(self._from_twists(T0, grid[:, None] * u[None]), c, own_sd=True,
+                                       floor=self._TURN_MAP_SD)[0]
+            use = (gpos.max(axis=0) - gpos.min(axis=0)) >= self._TURN_MIN_RANGE
+        ll = pos[:, ~use].sum(axis=1) + nor.sum(axis=1) + self._ll_free(Pb, results)
+        self._turn_shown = bool(np.any(use))
+        if not self._turn_shown:
+            # the particles' own turns, drawn again after resampling (see update)
+            dn = d[self._systematic(wt, N)]
+            self._turn_draw = (T0, u, a, dn)
+            return self._from_twists(T0, base + dn[:, None] * u), ll
+        lg = gpos[:, use].sum(axis=1)
+        eps = self._TURN_OUTLIER
+        lprior = np.logaddexp(np.log1p(-eps) - 0.5 * ((grid - m) / sd) ** 2 - np.log(np.sqrt(2 * np.pi) * sd),
+                              np.log(eps / (2 * R)))
+        lp = lprior + lg
+        pg = np.exp(lp - logsumexp(lp))
+        self._turn_post_var = float(pg @ (grid - pg @ grid) ** 2)
+        k = self._systematic(pg, N)
+        dn = grid[k] + self.rng.uniform(-0.5, 0.5, N) * self._TURN_STEP
+        self._turn_draw = (T0, u, a, dn)
+        self.info.setdefault("turn_search", []).append(
+            dict(step=len(self._steps), contacts=int(use.sum()), prior=(m, sd), mode=float(grid[np.argmax(lp)] - m),
+                 gain=float(lg.max() - np.interp(m, grid, lg)), R=R))
+        self._turn_unseen = 0.0
+        return self._from_twists(T0, base + dn[:, None] * u), ll
+
+    def _backfill_turn(self, D, T):
+        """Spread a turn's correction over the steps that did not show the turn.
+
+        When the contacts show the turn again after steps that did not (a handle touched
+        again after touches on a mug's body), the correction this step makes is the
+        odometry's error accumulated since the last step that showed it; a biased
+        odometry accumulates it in proportion to the turn. The poses of those steps are
+        turned by their share (about the odometry's axis through their own origin), and
+        their touches move with them in the map.
+        """
+        shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
+        if not shown:
+            return
+        seg = list(range(shown[-1] + 1, len(self._steps)))
+        if not seg or any(self._steps[j]["motion"] is None for j in seg):
+            return
+        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        a = w / np.linalg.norm(w)
+        pred = D @ self.trajectory[-1]
+        c = float(Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ a)
+        # the turn made at each step of the segment, as applied
+        turns = np.array([float(np.linalg.norm(Rotation.from_matrix(self._steps[j]["motion"][0][:3, :3]).as_rotvec()))
+                          for j in seg] + [float(np.linalg.norm(w))])
+        share = np.cumsum(turns)[:-1] / turns.sum()
+        moves = [None] * len(self.map.batches)
+        for j, f in zip(seg, share):
+            old = self.trajectory[j + 1]
+            new = old.copy()
+            new[:3, :3] = Rotation.from_rotvec(c * f * a).as_matrix() @ old[:3, :3]
+            self.trajectory[j + 1] = new
+            if self._steps[j]["batch"] is not None:
+                moves[self._steps[j]["batch"]] = np.linalg.inv(new) @ old
+        if any(m is not None for m in moves):
+            self.map.relocate(moves)
+
+    def _systematic(self, w, n):
+        """(n,) indices drawn from the weights ``w`` by systematic resampling."""
+        idx = np.searchsorted(np.cumsum(w), (self.rng.random() + np.arange(n)) / n)
+        return np.clip(idx, 0, len(w) - 1)
+
     def _mean_pose(self, P=None):
         """Weighted mean of the particles ``P`` (default: the current ones) under ``log_w``."""
         P = self.particles if P is None else P
@@ -344,8 +544,14 @@ class TactileSLAM:
                 # a commanded motion's error accumulates unseen (a turn's bias on a round
                 # body); a push is re-measured by the touches that follow it
                 P = self._inflate(P)
+        self._turn_shown = None
+        self._turn_draw = None
         if self.map.n_contacts > 0:
-            ll = self._log_likelihood(P, results)
+            got = self._turn_aware(P, results, D) if (D is not None and self._TURN_AWARE) else None
+            if got is None:
+                ll = self._log_likelihood(P, results)
+            else:
+                P, ll = got
             lw = self.log_w + ll
             lw -= logsumexp(lw)
         else:
@@ -357,6 +563,14 @@ class TactileSLAM:
             idx = np.searchsorted(np.cumsum(w), (self.rng.random() + np.arange(len(P))) / len(P))
             P = P[np.clip(idx, 0, len(P) - 1)]
             lw = np.full(len(P), -np.log(len(P)))
+        if self._turn_draw is not None:
+            # the turns drawn by _turn_aware, dealt out again: resampling on the other
+            # components picks few ancestors when the contacts pin them, and their turns
+            # would move the mean by the turns' spread over the root of that few
+            T0, u, a, dn = self._turn_draw
+            xi = self._twists(P, T0)
+            P = self._from_twists(T0, xi - (xi[:, 3:] @ a)[:, None] * u + self.rng.permutation(dn)[:, None] * u)
+            self._turn_draw = None
         self.particles, self.log_w = P, lw
         T = self._mean_pose()
         fisher = None
@@ -364,6 +578,8 @@ class TactileSLAM:
             self._cov, fisher = self._update_cov(self._cov, T, results)
         if D is not None and self.learn_odometry_scale:
             self._learn_scale(D, T, results, fisher)
+        if D is not None and self._turn_shown and self._TURN_BACKFILL:
+            self._backfill_turn(D, T)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -378,7 +594,7 @@ class TactileSLAM:
         hits = [r.contact for r in results if r.contact is not None]
         c = Contacts.concatenate(hits) if hits else None
         self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
-                                batch=len(self.map.batches) - 1 if keep else None))
+                                batch=len(self.map.batches) - 1 if keep else None, turn_shown=self._turn_shown))
         if self.smooth_every and len(self._steps) >= self._next_smooth:
             self.smooth()
             k = len(self._steps)
@@ -409,7 +625,8 @@ class TactileSLAM:
             np.concatenate([c.normals for _, c in steps]), np.concatenate([np.full(len(c), i) for i, c in steps]),
             [st["motion"] for st in self._steps], planar=self.planar, sigma_pos=self.map.sigma_pos,
             sigma_nor=self.map.sigma_nor, radius=self.map.lengthscale,
-            hold=max(0, len(self._steps) - self.smooth_window) if self.smooth_window else 0)
+            hold=max(0, len(self._steps) - self.smooth_window) if self.smooth_window else 0,
+            fixed_turns=[st.get("turn_shown") is False for st in self._steps] if self._SMOOTH_FIX_TURNS else None)
         rec.update(info)
         if info["accepted"]:
             # the map moves each step's touches from its old pose to its new one (object frame);
@@ -439,6 +656,8 @@ class TactileSLAM:
     _SCALE_MIN_CONTACTS = 30
     _SCALE_PRIOR_SD = 0.05
     _SCALE_MIN_INFO = 0.05
+    _SCALE_KALMAN = True
+    _SCALE_MEAS_SD = np.deg2rad(3.0)
 
     def _learn_scale(self, D, T, results, fisher):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
@@ -452,27 +671,54 @@ class TactileSLAM:
         :meth:`_update_cov`; a mug's body shows nothing), a small gain, and a clipped
         range. A correction counts against all the turn made since the last step that
         showed one, not this step's alone.
+
+        With the turn estimated apart (:meth:`_turn_aware`), a step shows the turn when
+        some contact moved it, and the update is a Kalman one: the correction c after an
+        unseen turn U measures the scale's relative error e as ``c = e U``, with the
+        odometry's noise over those steps and the grid posterior's variance (at least
+        ``_SCALE_MEAS_SD``) as its noise, from a prior of ``_SCALE_PRIOR_SD``; a correction
+        beyond three standard deviations of that is ignored.
         """
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
         # the turn made since the last step that showed one: a correction now is the bias
         # of all of it, not of this step's turn alone
         self._unseen_turn += theta
+        self._unseen_steps += 1
         n_hit = sum(len(r.contact) for r in results if r.contact is not None)
         if theta < 1e-6 or n_hit < 2 or self.map.n_contacts < self._SCALE_MIN_CONTACTS:
             return
         # only a step whose contacts show the turn: their Fisher information about it must
         # be worth a twentieth of one step's odometry noise (a mug's body shows nothing)
-        if fisher is None:
-            return
-        lever, r = fisher
-        a = self.trajectory[-1][:3, :3].T @ (w / theta)
-        if float(np.sum((lever @ a) ** 2 / r)) * self.odometry_noise[1] ** 2 < self._SCALE_MIN_INFO:
-            return
+        if self._turn_shown is not None:
+            # the turn was estimated apart (_turn_aware): only a step whose contacts moved it counts
+            if not self._turn_shown:
+                return
+        else:
+            if fisher is None:
+                return
+            lever, r = fisher
+            a = self.trajectory[-1][:3, :3].T @ (w / theta)
+            if float(np.sum((lever @ a) ** 2 / r)) * self.odometry_noise[1] ** 2 < self._SCALE_MIN_INFO:
+                return
         pred = D @ self.trajectory[-1]
         innov = Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
-        s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / self._unseen_turn)
+        if self._turn_shown is not None and self._SCALE_KALMAN:
+            # the correction is the relative scale error times the turn made unseen, U, plus the
+            # odometry's noise over those steps and the correction's own error: a Kalman update
+            U = self._unseen_turn
+            r = self.odometry_noise[1] ** 2 * self._unseen_steps + max(self._turn_post_var, self._SCALE_MEAS_SD**2)
+            S = U * U * self._scale_var + r
+            if innov * innov > 9.0 * S:
+                # beyond three standard deviations of what a scale error and the noise explain
+                return
+            K = self._scale_var * U / S
+            s = self.odometry_scale * (1.0 + K * innov)
+            self._scale_var = (1.0 - K * U) * self._scale_var
+        else:
+            s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / self._unseen_turn)
         self._unseen_turn = 0.0
+        self._unseen_steps = 0
         self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
         self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
 
@@ -487,38 +733,63 @@ class TactileSLAM:
         mapped pulled the pose towards fitting the sphere: on the milk carton the second
         step's estimate moved 7 mm the wrong way.)
         """
+        hits = [r.contact for r in results if r.contact is not None]
+        c = Contacts.concatenate(hits) if hits else None
+        return self._ll_contacts(P, c) + self._ll_free(P, results)
+
+    def _ll_contacts(self, P, c):
+        """(N,) the contacts' share of :meth:`_log_likelihood` (``c`` world-frame Contacts or None)."""
+        pos, nor = self._contact_terms(P, c)
+        return pos.sum(axis=1) + nor.sum(axis=1)
+
+    def _contact_terms(self, P, c, *, own_sd: bool = False, floor: float = 0.0):
+        """``(pos (N, K), nor (N, K))``: each contact's position and normal terms of
+        :meth:`_log_likelihood` at each pose of ``P``, each less its prior's. The map's
+        standard deviation is taken at the mean pose's points, or with ``own_sd`` at each
+        pose's own."""
         smap = self.map
         gpis = smap.method == "gpis"
         prior_var = smap.signal_std**2
         N = len(P)
-        ll = np.zeros(N)
+        K = 0 if c is None else len(c)
+        pos, nor = np.zeros((N, K)), np.zeros((N, K))
+        if K == 0:
+            return pos, nor
         Rt = np.transpose(P[:, :3, :3], (0, 2, 1))
-        hits = [r.contact for r in results if r.contact is not None]
-        if hits:
-            c = Contacts.concatenate(hits)
-            x = np.einsum("nij,nkj->nki", Rt, c.points[None, :, :] - P[:, None, :3, 3]).reshape(-1, 3)
-            if gpis:
-                mu, g = smap._gp.mean_grad(x)
-            else:
-                mu = smap.signed_distance(x)
+        x = np.einsum("nij,nkj->nki", Rt, c.points[None, :, :] - P[:, None, :3, 3]).reshape(-1, 3)
+        if gpis:
+            mu, g = smap._gp.mean_grad(x)
+        else:
+            mu = smap.signed_distance(x)
+        if own_sd:
+            sd = smap.surface_std(np.clip(x, smap.lo, smap.hi))
+        else:
             # the map's own uncertainty, evaluated once at the mean pose's points
             T = self._mean_pose()
-            xm = (c.points - T[:3, 3]) @ T[:3, :3]
-            sd = smap.surface_std(xm)
-            var = np.tile(sd**2, N) + smap.sigma_pos**2
-            ll += (-0.5 * mu**2 / var).reshape(N, -1).sum(axis=1)
-            if gpis:
-                pm, pg = smap._gp.prior(x)
-                ll += (0.5 * pm**2 / (prior_var + smap.sigma_pos**2)).reshape(N, -1).sum(axis=1)
-            if c.normals is not None and gpis:
-                g /= np.maximum(np.linalg.norm(g, axis=1), 1e-9)[:, None]
-                n_loc = np.einsum("nij,nkj->nki", Rt, np.broadcast_to(c.normals, (N,) + c.normals.shape)).reshape(-1, 3)
-                # the map's normal is as uncertain as its gradient: for the squared-exponential
-                # kernel the gradient's standard deviation is about the value's over the length scale
-                var_n = np.tile((sd / smap.lengthscale) ** 2, N) + smap.sigma_nor**2
-                ll += (-0.5 * np.sum((g - n_loc) ** 2, axis=1) / var_n).reshape(N, -1).sum(axis=1)
-                pvar_n = prior_var / smap.lengthscale**2 + smap.sigma_nor**2
-                ll += (0.5 * np.sum((pg - n_loc) ** 2, axis=1) / pvar_n).reshape(N, -1).sum(axis=1)
+            sd = np.tile(smap.surface_std((c.points - T[:3, 3]) @ T[:3, :3]), N)
+        var = sd**2 + smap.sigma_pos**2 + floor**2
+        pos += (-0.5 * mu**2 / var).reshape(N, K)
+        if gpis:
+            pm, pg = smap._gp.prior(x)
+            pos += (0.5 * pm**2 / (prior_var + smap.sigma_pos**2 + floor**2)).reshape(N, K)
+        if c.normals is not None and gpis:
+            g /= np.maximum(np.linalg.norm(g, axis=1), 1e-9)[:, None]
+            n_loc = np.einsum("nij,nkj->nki", Rt, np.broadcast_to(c.normals, (N,) + c.normals.shape)).reshape(-1, 3)
+            # the map's normal is as uncertain as its gradient: for the squared-exponential
+            # kernel the gradient's standard deviation is about the value's over the length scale
+            var_n = (sd / smap.lengthscale) ** 2 + smap.sigma_nor**2
+            nor += (-0.5 * np.sum((g - n_loc) ** 2, axis=1) / var_n).reshape(N, K)
+            pvar_n = prior_var / smap.lengthscale**2 + smap.sigma_nor**2
+            nor += (0.5 * np.sum((pg - n_loc) ** 2, axis=1) / pvar_n).reshape(N, K)
+        return pos, nor
+
+    def _ll_free(self, P, results):
+        """(N,) the swept free space's share of :meth:`_log_likelihood`."""
+        smap = self.map
+        prior_var = smap.signal_std**2
+        N = len(P)
+        ll = np.zeros(N)
+        Rt = np.transpose(P[:, :3, :3], (0, 2, 1))
         # free space: swept points should lie outside
         pts = []
         for r in results:

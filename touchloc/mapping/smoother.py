@@ -49,7 +49,7 @@ def _skew(v):
 
 def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar: bool, sigma_pos: float,
                       sigma_nor: float, radius: float, neighbours: int = 10, loss_scale: float = 3.0,
-                      iterations: int = 6, hold: int = 0):
+                      iterations: int = 6, hold: int = 0, fixed_turns=None):
     """Revise a trajectory of object poses from its contacts and motion model.
 
     Internal to :class:`touchloc.mapping.TactileSLAM` (inputs are trusted).
@@ -79,6 +79,13 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     hold : int
         The first ``hold`` steps keep their poses (a fixed-lag smoother: old poses, long
         settled, anchor the rest and are not solved for again).
+    fixed_turns : list of S bool, optional
+        Steps whose turn about their motion's axis stays as it is: the revision may move
+        such a pose in every other way, but not turn it about the axis of the rotation
+        its motion ``D`` makes (through that rotation's fixed point). For an object a hand
+        turns, the steps whose contacts did not show the turn (a mug's body: the filter
+        set those turns from the odometry alone, and the surface pairs and the motion
+        factors would drag them back towards the odometry's bias).
 
     Returns
     -------
@@ -102,6 +109,22 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     P, N, own = np.asarray(points, float), np.asarray(normals, float), np.asarray(owner, np.int64)
     Dm = np.array([np.eye(4) if m is None else m[0] for m in motions])
     sigm = np.array([[1.0] * 6 if m is None else [m[1][0]] * 3 + [m[1][1]] * 3 for m in motions])
+
+    turn_rows, turn_axes, turn_pts = [], [], []
+    if fixed_turns is not None:
+        for k in range(S):
+            if not (fixed_turns[k] and free[k]):
+                continue
+            R = Dm[k, :3, :3]
+            w = Rotation.from_matrix(R).as_rotvec()
+            th = float(np.linalg.norm(w))
+            if th < 1e-9:
+                continue
+            turn_rows.append(k)
+            turn_axes.append(w / th)
+            turn_pts.append(np.linalg.lstsq(np.eye(3) - R, Dm[k, :3, 3], rcond=None)[0])
+    turn_rows = np.array(turn_rows, dtype=np.int64)
+    turn_axes, turn_pts = np.array(turn_axes).reshape(-1, 3), np.array(turn_pts).reshape(-1, 3)
 
     def associate(T):
         """Neighbour pairs i < j from different steps with agreeing normals (object frame)."""
@@ -164,6 +187,15 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
             cols.append(np.tile(col[fs[chain] - 1, None] * d + np.arange(d), (1, d)).ravel())
             vals.append(B.ravel())
         mrow = m0 + len(fs) * d
+        if len(turn_rows):
+            # the increment along each fixed step's turn is held at zero
+            k = len(turn_rows)
+            rows.append(np.repeat(mrow + np.arange(k), d))
+            cols.append((col[turn_rows, None] * d + np.arange(d)).ravel())
+            U = np.concatenate([np.cross(turn_axes, T[turn_rows, :3, 3] - turn_pts), turn_axes], 1)[:, dof]
+            vals.append((U / 1e-6).ravel())
+            res.append(np.zeros(k))
+            mrow += k
         A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                               shape=(mrow, n_par))
         return A, np.concatenate(res), m0
