@@ -547,7 +547,10 @@ class TactileSLAM:
         self._turn_shown = None
         self._turn_draw = None
         if self.map.n_contacts > 0:
-            got = self._turn_aware(P, results, D) if (D is not None and self._TURN_AWARE) else None
+            # the turn estimated apart is how a biased odometry's turns are learned: with the
+            # scale fixed (the odometry trusted) the turn is scored with the rest of the pose
+            got = (self._turn_aware(P, results, D)
+                   if (D is not None and self._TURN_AWARE and self.learn_odometry_scale) else None)
             if got is None:
                 ll = self._log_likelihood(P, results)
             else:
