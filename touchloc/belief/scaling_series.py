@@ -105,13 +105,16 @@ class ScalingSeries:
         A continuous symmetry of the object (a body of revolution, a sphere) makes every
         turn about it explain the contacts alike: the posterior is a whole orbit, and
         covering it particle by particle fills the cap at every scale. With a symmetry
-        (``"auto"``: ``model.obj.symmetries()`` when it is continuous and the region's
-        rotation is ``"full"``) every particle is replaced by the one pose of its class
-        without a turn about the axis (:meth:`~touchloc.models.symmetry.Symmetry.canonical`),
-        so the search covers the poses that place the surface differently and nothing
-        else. The belief then holds these representatives (``info["symmetry"]``); any
-        member of a class is as good (symmetric errors such as ADD-S do not tell them
-        apart). None searches every pose. Evidence estimates (:func:`identify`) use None.
+        every particle is replaced by the one pose of its class without a turn about the
+        axis (:meth:`~touchloc.models.symmetry.Symmetry.canonical`), so the search covers
+        the poses that place the surface differently and nothing else. The belief then
+        holds these representatives (``info["symmetry"]``); any member of a class is as
+        good (symmetric errors such as ADD-S do not tell them apart). The search is used
+        only when the region's rotation is ``"full"``. ``"auto"`` (default) uses
+        ``model.obj.symmetries()`` when it is a sphere's: there it saves 50-80x; for a body
+        of revolution the saved evaluations (a third to a half) were eaten by a denser
+        cover at 5 contacts (docs/localization.md), so pass ``obj.symmetries()`` to ask
+        for it. None searches every pose. Evidence estimates (:func:`identify`) use None.
     rng : None, int or Generator
     """
 
@@ -182,6 +185,7 @@ class ScalingSeries:
             if obj is None or not callable(getattr(obj, "symmetries", None)):
                 return None
             sym = obj.symmetries()
+            return sym if sym.sphere else None
         return sym if sym.continuous else None
 
     def _canonical(self, region: PoseRegion, sym, X):

@@ -122,10 +122,10 @@ class Symmetry:
             tw[:, :3] *= -1.0      # its inverse
             qc = _qmul(q, tw)
         qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
+        if not np.any(c):
+            return qc, t
         # the world position of the centre stays: R c + t = R_c c + t_c
-        R = Rotation.from_quat(q).as_matrix()
-        Rc = Rotation.from_quat(qc).as_matrix()
-        t = t + R @ c - Rc @ c
+        t = t + _qrot(q, c) - _qrot(qc, c)
         return qc, t
 
     def canonical_poses(self, poses) -> np.ndarray:
@@ -176,6 +176,18 @@ def _qmul(p, q):
     qv, qw = q[:, :3], q[:, 3:]
     return np.concatenate([pw * qv + qw * pv + np.cross(pv, qv), pw * qw - np.sum(pv * qv, axis=1, keepdims=True)],
                           axis=1)
+
+
+def _qrot(q, v):
+    """(N, 3) the vector v (3,) rotated by each unit quaternion of q (N, 4), scalar last."""
+    x, y, z, w = q.T
+    # u x v, then v + 2 (w (u x v) + u x (u x v)), written out (np.cross is slow on (N, 3))
+    a = y * v[2] - z * v[1]
+    b = z * v[0] - x * v[2]
+    c = x * v[1] - y * v[0]
+    return np.stack([v[0] + 2.0 * (w * a + y * c - z * b),
+                     v[1] + 2.0 * (w * b + z * a - x * c),
+                     v[2] + 2.0 * (w * c + x * b - y * a)], axis=1)
 
 
 def surface_moments(obj):
