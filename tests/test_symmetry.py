@@ -195,3 +195,24 @@ def test_canonical_poses_are_one_member_of_each_class(meshes):
     qs, ts = ball.canonical(R.as_quat(), t)
     np.testing.assert_allclose(np.abs(qs[:, 3]), 1.0, atol=1e-12)
     np.testing.assert_allclose(R.as_matrix() @ ball.center + t, ball.center + ts, atol=1e-12)
+
+
+def test_symmetry_methods_reject_bad_input(meshes):
+    """Wrong shapes, non-unit quaternions, NaN, reflections and non-numbers are clear errors."""
+    sym = meshes["can"].symmetries()
+    flip = np.diag([1.0, 1.0, -1.0, 1.0])
+    for call, match in ((lambda: sym.canonical([[0, 0, 0, 2.0]], [[0, 0, 0]]), "unit"),
+                        (lambda: sym.canonical([[0, 0, 0, 1.0]], [[0, 0, 0], [1, 1, 1]]), "match"),
+                        (lambda: sym.canonical(np.zeros((2, 5)), np.zeros((2, 3))), r"\(N, 4\)"),
+                        (lambda: sym.canonical([[np.nan, 0, 0, 1.0]], [[0, 0, 0]]), "finite"),
+                        (lambda: sym.canonical("q", [[0, 0, 0]]), "quat_xyzw"),
+                        (lambda: sym.canonical_poses(flip), "reflection"),
+                        (lambda: sym.canonical_poses(np.eye(3)), "4, 4"),
+                        (lambda: sym.rotation_error(np.eye(3), np.full((3, 3), np.inf)), "finite"),
+                        (lambda: sym.rotation_error(np.zeros((2, 3)), np.eye(3)), "R_est")):
+        with pytest.raises(ValidationError, match=match):
+            call()
+    # one pose as (4,) / (3,) or (4, 4) is accepted and returned as a batch of one
+    q, t = sym.canonical([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    assert q.shape == (1, 4) and t.shape == (1, 3)
+    assert sym.canonical_poses(np.eye(4)).shape == (1, 4, 4)

@@ -192,7 +192,7 @@ class ScalingSeries:
         """Canonical representatives of poses X that stay inside ``region``."""
         if sym is None:
             return X
-        Y = sym.canonical_poses(X)
+        Y = sym._canonical_poses(X)
         inside = region.contains(Y)
         return Y[inside] if np.any(inside) else X
 
@@ -339,7 +339,7 @@ class ScalingSeries:
         if sym is not None:
             # the moves wander along the symmetry, where the likelihood is flat: back to the
             # representatives (the same surfaces, so the same likelihoods)
-            P = sym.canonical_poses(P)
+            P = sym._canonical_poses(P)
         out = ParticleBelief(P, None, region=region, resolution=cover.resolution, info=dict(cover.info),
                              degenerate=cover.degenerate)
         out.info.update(cover=cover, map_pose=P[int(np.argmax(l_old + l_new))].copy(), final_stages=stages,
@@ -560,7 +560,7 @@ class _Draws:
         q = _quat_mul(_quat_from_rotvec(v[:, k:] / rho), qc[pick])
         q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
         if sym is not None:
-            q, t = sym.canonical(q, t)
+            q, t = sym._canonical(q, t)
         self._t, self._q = t, q
         self.inside = np.all(np.abs(t - region.center) <= region.half_extent + 1e-9, axis=1)
         self.centres_emb = np.concatenate([centers[:, :3, 3][:, free], 2.0 * rho * qc], axis=1)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._validate import as_float_array, as_poses
 from ..errors import ValidationError
 
 __all__ = ["Symmetry", "find_symmetries", "surface_moments"]
@@ -102,7 +103,23 @@ class Symmetry:
         quat_xyzw, t : (N, 4), (N, 3) float
             Canonical poses (scalar part >= 0).
         """
-        q = np.array(quat_xyzw, dtype=float, copy=True).reshape(-1, 4)
+        q = as_float_array(quat_xyzw, "quat_xyzw")
+        q = q.reshape(1, 4) if q.shape == (4,) else q
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise ValidationError(f"quat_xyzw must be (N, 4), got shape {q.shape}")
+        norm = np.linalg.norm(q, axis=1)
+        if np.any(np.abs(norm - 1.0) > 1e-6):
+            raise ValidationError(f"quat_xyzw must hold unit quaternions, got norms from "
+                                  f"{norm.min():.6g} to {norm.max():.6g}")
+        t = as_float_array(t, "t")
+        t = t.reshape(1, 3) if t.shape == (3,) else t
+        if t.shape != (len(q), 3):
+            raise ValidationError(f"t must be ({len(q)}, 3) to match quat_xyzw, got shape {t.shape}")
+        return self._canonical(q, t)
+
+    def _canonical(self, q, t):
+        """:meth:`canonical` without validation (the estimators' own particles)."""
+        q = np.array(q, dtype=float, copy=True).reshape(-1, 4)
         t = np.array(t, dtype=float, copy=True).reshape(-1, 3)
         if not self.continuous:
             return q, t
@@ -129,11 +146,15 @@ class Symmetry:
         return qc, t
 
     def canonical_poses(self, poses) -> np.ndarray:
-        """:meth:`canonical` for (N, 4, 4) poses."""
-        P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        """:meth:`canonical` for (N, 4, 4) (or one (4, 4)) rigid poses; returns (N, 4, 4)."""
+        return self._canonical_poses(as_poses(poses, "poses"))
+
+    def _canonical_poses(self, P):
+        """:meth:`canonical_poses` without validation."""
+        P = np.asarray(P, dtype=float).reshape(-1, 4, 4)
         if not self.continuous:
             return P.copy()
-        q, t = self.canonical(Rotation.from_matrix(P[:, :3, :3]).as_quat(), P[:, :3, 3])
+        q, t = self._canonical(Rotation.from_matrix(P[:, :3, :3]).as_quat(), P[:, :3, 3])
         out = np.zeros_like(P)
         out[:, :3, :3] = Rotation.from_quat(q).as_matrix()
         out[:, :3, 3] = t
@@ -152,8 +173,11 @@ class Symmetry:
         -------
         (N,) float
         """
-        Re = np.asarray(R_est, dtype=float).reshape(-1, 3, 3)
-        Rt = np.asarray(R_true, dtype=float).reshape(3, 3)
+        Re = as_float_array(R_est, "R_est")
+        Re = Re[None] if Re.shape == (3, 3) else Re
+        if Re.ndim != 3 or Re.shape[1:] != (3, 3):
+            raise ValidationError(f"R_est must be (N, 3, 3) or (3, 3), got shape {Re.shape}")
+        Rt = as_float_array(R_true, "R_true", shape=(3, 3))
         if self.sphere:
             return np.zeros(len(Re))
         rel = np.einsum("ji,njk->nik", Rt, Re)  # R_true^T R_est, object frame
