@@ -346,6 +346,8 @@ CHEAP = {
     "belief.hpd_level": dict(n=6, k=2),
     "belief.pairwise_symmetric_distance": dict(rho=0.05),
     "planners.prob_error_below": dict(threshold=0.005),
+    "models.Symmetry": dict(rotations=np.eye(3)[None]),
+    "mapping.Superquadric": dict(scale=np.full(3, 0.02), eps=np.ones(2), covariance=np.zeros((11, 11)), rms=0.0),
     "experiments.Sweep": dict(contacts=[3], region="full", seeds=1),
     "recognition.simulate_dataset": dict(n_scans=1, scanner=None),
     "recognition.evaluate_protocol": dict(n_train=2, n_splits=1, make_classifier=_classifier),

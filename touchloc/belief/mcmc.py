@@ -60,7 +60,7 @@ class MCMC:
         contacts = check_contacts(contacts)
         if not isinstance(start, ParticleBelief):
             raise ValidationError("start must be a ParticleBelief (e.g. a Scaling Series result)")
-        region = region or start.region
+        region = start.region if region is None else region
         if region is None:
             raise ValidationError("give region= (the start belief has none)")
         region = check_region(region, self.model)

@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from .._util import as_rng
-from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_count, as_nonnegative_float, as_positive_float,
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_nonnegative_float, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
 from ._common import check_contacts, check_dynamics, check_model, check_region, finite_loglik, flag_degenerate, measurement
@@ -95,6 +95,7 @@ class ParticleFilter:
         FreeSpaceModel.from_results(obj, results)`` (then ``contacts`` may be None).
         """
         self._require()
+        resample = as_bool(resample, "resample")
         if model is None:
             contacts, m = measurement(self.model, contacts, free_space=free_space)
         else:

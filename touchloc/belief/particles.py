@@ -8,7 +8,7 @@ from scipy.special import logsumexp
 
 from .._util import as_poses, as_rng
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_instance,
-                         as_mapping, as_positive_float)
+                         as_mapping, as_positive_float, as_probability)
 from ..errors import BeliefDegenerateError, ValidationError
 from .region import PoseRegion
 
@@ -155,7 +155,7 @@ class ParticleBelief:
 
     def tangent(self, ref=None) -> np.ndarray:
         """Particles in metric coordinates around ``ref`` (default: mean pose): (N, dim)."""
-        ref = self.mean_pose() if ref is None else np.asarray(ref, dtype=float)
+        ref = self.mean_pose() if ref is None else ref    # validated by to_local
         return self._region().to_local(self.poses, ref)
 
     def covariance(self, ref=None) -> np.ndarray:
@@ -189,6 +189,8 @@ class ParticleBelief:
         the 2000 heaviest particles are used.
         """
         d = self._region().dim
+        if not isinstance(method, str):
+            raise ValidationError(f"entropy method must be 'gaussian' or 'kde', got {type(method).__name__}")
         if method == "gaussian":
             C = self.covariance()
             floor = (self.resolution or 0.0) ** 2 / (d + 2.0)  # variance of a uniform ball
@@ -217,10 +219,10 @@ class ParticleBelief:
     # -- operations --------------------------------------------------------------------
     def resample(self, n: int | None = None, *, method: str = "systematic", rng=None) -> "ParticleBelief":
         """A new belief of n equally weighted particles drawn by weight."""
-        if method not in RESAMPLERS:
+        if not isinstance(method, str) or method not in RESAMPLERS:
             raise ValidationError(f"unknown resampler {method!r}; registered: {sorted(RESAMPLERS)}")
         rng = as_rng(rng)
-        n = len(self) if n is None else int(n)
+        n = len(self) if n is None else as_count(n, "n", max=MAX_PARTICLES, why=WHY_PARTICLES)
         idx = RESAMPLERS[method](self.weights, n, rng)
         return self.with_particles(self.poses[idx], None)
 
@@ -233,15 +235,14 @@ class ParticleBelief:
 
     def reweighted(self, log_likelihood) -> "ParticleBelief":
         """Bayes update: multiply the weights by exp(log_likelihood) (N,)."""
-        ll = np.asarray(log_likelihood, dtype=float).reshape(-1)
+        ll = as_float_array(log_likelihood, "log_likelihood", finite=False).reshape(-1)
         if ll.shape != (len(self),):
             raise ValidationError(f"log_likelihood must be ({len(self)},), got {ll.shape}")
         return self.with_particles(self.poses, self.log_weights + ll)
 
     def credible_set(self, level: float = 0.9) -> np.ndarray:
         """Indices of the fewest heaviest particles whose weights add up to ``level``."""
-        if not 0 < level <= 1:
-            raise ValidationError(f"level must be in (0, 1], got {level}")
+        level = as_probability(level, "level", open_low=True)
         order = np.argsort(-self.log_weights)
         cum = np.cumsum(self.weights[order])
         k = int(np.searchsorted(cum, level - 1e-12) + 1)
@@ -254,7 +255,7 @@ class ParticleBelief:
         resolution) around the heaviest particles holding ``level`` of the weight.
         """
         Q = as_poses(poses)
-        r = radius if radius is not None else self.resolution
+        r = as_positive_float(radius, "radius") if radius is not None else self.resolution
         if r is None:
             raise ValidationError("no radius: give radius= or build the belief with a resolution")
         S = self.poses[self.credible_set(level)]

@@ -6,9 +6,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._util import as_poses, as_rng
-from .._validate import as_float_array, as_positive_float
+from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_nonnegative_float, as_pose,
+                         as_positive_float)
 from ..errors import ValidationError
 from ..geometry import make_poses
+
+#: largest perturbation scale (m, pose metric) accepted: beyond it the rotations overflow
+MAX_SCALE = 1e6
 
 __all__ = ["PoseRegion"]
 
@@ -156,8 +160,8 @@ class PoseRegion:
     # -- sampling and membership -----------------------------------------------------
     def sample(self, n: int, *, rng=None) -> np.ndarray:
         """n poses drawn uniformly from the region: (n, 4, 4)."""
+        n = as_count(n, "n", min=0, max=MAX_PARTICLES, why=WHY_PARTICLES)
         rng = as_rng(rng)
-        n = int(n)
         t = self.center + rng.uniform(-1.0, 1.0, (n, 3)) * self.half_extent
         return make_poses(self._sample_rotations(n, rng), t)
 
@@ -180,6 +184,7 @@ class PoseRegion:
     def contains(self, poses, *, tol: float = 1e-9) -> np.ndarray:
         """(N,) bool: which poses lie in the region (rotation constraints included)."""
         P = as_poses(poses)
+        tol = as_nonnegative_float(tol, "tol")
         ok = np.all(np.abs(P[:, :3, 3] - self.center) <= self.half_extent + tol, axis=1)
         R = P[:, :3, :3]
         if self.rotation == "fixed":
@@ -200,7 +205,7 @@ class PoseRegion:
         (rotation vector of R R_ref^T; for yaw regions its z component).
         """
         P = as_poses(poses)
-        ref = np.asarray(ref, dtype=float)
+        ref = as_pose(ref, "ref")
         dt = (P[:, :3, 3] - ref[:3, 3])[:, self.free_translation]
         if self.rotation == "fixed":
             return dt
@@ -211,8 +216,12 @@ class PoseRegion:
 
     def from_local(self, v, ref) -> np.ndarray:
         """Inverse of :meth:`to_local`: (N, dim) metric coordinates -> (N, 4, 4) poses."""
-        v = np.asarray(v, dtype=float).reshape(-1, self.dim)
-        ref = np.asarray(ref, dtype=float)
+        v = as_float_array(v, "v")
+        if v.shape == (self.dim,):
+            v = v[None]
+        if v.ndim != 2 or v.shape[1] != self.dim:
+            raise ValidationError(f"v must be (N, {self.dim}) metric coordinates of this region, got shape {v.shape}")
+        ref = as_pose(ref, "ref")
         k = int(self.free_translation.sum())
         t = np.repeat(ref[None, :3, 3], len(v), axis=0)
         t[:, self.free_translation] += v[:, :k]
@@ -236,8 +245,11 @@ class PoseRegion:
         """
         rng = as_rng(rng)
         P = as_poses(poses)
+        ball = as_bool(ball, "ball")
         n, d = len(P), self.dim
         s = as_float_array(scale, "scale", low=0.0, expected="a finite scale >= 0 (or one per pose)")
+        if s.size and s.max() > MAX_SCALE:
+            raise ValidationError(f"scale must be <= {MAX_SCALE:g} m (a perturbation, not a teleport), got {s.max():g}")
         if s.shape not in ((), (1,), (n,)):
             raise ValidationError(f"scale must be one number or one per pose ({n},), got shape {s.shape}")
         s = np.broadcast_to(s.reshape(-1) if s.ndim else s, (n,))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import warnings
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import numpy as np
 import trimesh
 
 from .._util import as_points
-from .._validate import as_bool
+from .._validate import as_bool, as_count, as_path
 from ..errors import MappingError, ValidationError
 from .gpis import GPIS, bound_site
 from .occupancy import OccupancyGrid
@@ -492,9 +491,7 @@ class ShapeMap:
         """
         if self.method == "occupancy" and resolution is None:
             return self._grid.field()
-        res = self.resolution if resolution is None else int(resolution)
-        if not 8 <= res <= 512:
-            raise ValidationError(f"resolution must be in [8, 512], got {resolution!r}")
+        res = self.resolution if resolution is None else as_count(resolution, "resolution", min=8, max=512)
         h = float(np.max(self.hi - self.lo)) / (res - 1)
         n = np.maximum(np.ceil((self.hi - self.lo) / h).astype(int) + 1, 2)
         axes = [self.lo[i] + h * np.arange(n[i]) for i in range(3)]
@@ -539,7 +536,7 @@ class ShapeMap:
     # -- files -------------------------------------------------------------------------
     def save(self, path) -> Path:
         """Write the map to ``path`` (.npz): its settings and every touch, replayable."""
-        path = _as_path(path)
+        path = as_path(path, "path", must_exist=False)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
         rec = _pack_results(self.results)
@@ -547,14 +544,17 @@ class ShapeMap:
                         lengthscale=self.lengthscale, signal_std=self.signal_std,
                         prior=self.prior if isinstance(self.prior, str) else "sphere",
                         free_space=self.free_space, resolution=self.resolution)
-        np.savez_compressed(path, lo=self.lo, hi=self.hi, batches=np.array(self.batches, dtype=np.int64),
-                            settings=json.dumps(settings), **rec)
+        try:
+            np.savez_compressed(path, lo=self.lo, hi=self.hi, batches=np.array(self.batches, dtype=np.int64),
+                                settings=json.dumps(settings), **rec)
+        except OSError as exc:
+            raise ValidationError(f"cannot write the map file {path}: {exc}") from None
         return path
 
     @classmethod
     def load(cls, path) -> "ShapeMap":
         """Read a map written by :meth:`save` (replays its touches, so the map is identical)."""
-        path = _as_path(path)
+        path = as_path(path, "path", must_exist=False)
         if not path.is_file():
             raise ValidationError(f"no map file at {path}")
         try:
@@ -579,12 +579,6 @@ def _positive(name, v, default):
     if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (np.isfinite(v) and v > 0):
         raise ValidationError(f"{name} must be a positive finite number (m), got {v!r}")
     return float(v)
-
-
-def _as_path(path) -> Path:
-    if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)):
-        raise ValidationError(f"path must be a file path (str or os.PathLike), got {type(path).__name__}")
-    return Path(os.fspath(path))
 
 
 def _checked_prior(fn):

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from .._validate import as_count, as_float_array, as_nonnegative_float, as_points, as_pose
 from ..errors import MappingError, ValidationError
 from ..models import Contacts
 
@@ -69,6 +70,15 @@ class Superquadric:
     covariance: np.ndarray
     rms: float
 
+    def __post_init__(self):
+        self.pose = as_pose(self.pose, "pose")
+        self.scale = as_float_array(self.scale, "scale", shape=(3,))
+        self.eps = as_float_array(self.eps, "eps", shape=(2,))
+        if np.any(self.scale <= 0) or np.any(self.eps <= 0):
+            raise ValidationError(f"scale and eps must be > 0, got {self.scale.tolist()} and {self.eps.tolist()}")
+        self.covariance = as_float_array(self.covariance, "covariance", shape=(11, 11))
+        self.rms = as_nonnegative_float(self.rms, "rms")
+
     @property
     def std(self) -> dict:
         """Standard deviations: translation (m), rotation (rad), extents (m), exponents."""
@@ -81,7 +91,7 @@ class Superquadric:
 
     def radial_distance(self, points) -> np.ndarray:
         """(M,) approximate signed distance to the surface (negative inside, m)."""
-        X = self._local(points)
+        X = self._local(as_points(points, "points", allow_empty=True))
         F, _ = inside_outside(X, self.scale, self.eps)
         return np.linalg.norm(X, axis=1) * (1.0 - np.maximum(F, 1e-300) ** (-self.eps[0] / 2))
 
@@ -101,8 +111,11 @@ class Superquadric:
         return prior
 
     def sample_surface(self, n: int = 2000):
-        """(n, 3) world points on the surface from the parametric form (eq. 42.17)."""
-        m = max(2, int(np.sqrt(n)))
+        """(n, 3) world points on the surface from the parametric form (eq. 42.17).
+
+        The points lie on a grid of about sqrt(n) by sqrt(n) parameters, so the count
+        returned is the square of an integer near sqrt(n) (at least 4)."""
+        m = max(2, int(np.sqrt(as_count(n, "n", max=10**7))))
         w1, w2 = np.meshgrid(np.linspace(-np.pi / 2, np.pi / 2, m), np.linspace(-np.pi, np.pi, m, endpoint=False))
         e1, e2 = self.eps
 

@@ -7,7 +7,7 @@ from typing import Iterable, Optional
 import numpy as np
 
 from .._util import as_points
-from .._validate import as_path, as_pose
+from .._validate import as_path, as_pose, as_sequence
 from ..errors import ValidationError
 
 __all__ = ["Contacts"]
@@ -118,12 +118,9 @@ class Contacts:
     @staticmethod
     def concatenate(items: Iterable["Contacts"]) -> "Contacts":
         """Join batches. Normals are kept only if every batch has them."""
-        items = list(items)
+        items = as_sequence(items, "items", of=Contacts)
         if not items:
             return Contacts(np.zeros((0, 3)))
-        for c in items:
-            if not isinstance(c, Contacts):
-                raise ValidationError(f"can only concatenate Contacts, got {type(c).__name__}")
         P = np.concatenate([c.points for c in items], axis=0)
         if all(c.has_normals for c in items):
             return Contacts(P, np.concatenate([c.normals for c in items], axis=0))
@@ -135,12 +132,16 @@ class Contacts:
     # -- I/O -------------------------------------------------------------------------
     def to_csv(self, path) -> None:
         """Write ``x,y,z[,nx,ny,nz]`` rows with a header line."""
+        path = as_path(path, "path", must_exist=False)
         if self.has_normals:
             data = np.hstack([self._points, self._normals])
             header = "x,y,z,nx,ny,nz"
         else:
             data, header = self._points, "x,y,z"
-        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.9g")
+        try:
+            np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.9g")
+        except OSError as exc:
+            raise ValidationError(f"cannot write the contacts file {path}: {exc}") from None
 
     @classmethod
     def from_csv(cls, path) -> "Contacts":

@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .._util import as_poses, as_rng
-from .._validate import as_nonnegative_float
+from .._validate import as_float_array, as_nonnegative_float
 from ..errors import ValidationError
 
 __all__ = ["GaussianDynamics"]
@@ -90,7 +90,14 @@ class GaussianDynamics:
 
         lt = self.log_transition(poses, prev_poses)
         M = lt.shape[1]
-        lw = np.full(M, -np.log(M)) if prev_log_weights is None else np.asarray(prev_log_weights, float)
+        if prev_log_weights is None:
+            lw = np.full(M, -np.log(M))
+        else:
+            lw = as_float_array(prev_log_weights, "prev_log_weights", finite=False).reshape(-1)
+            if lw.shape != (M,):
+                raise ValidationError(f"prev_log_weights must be ({M},), one per previous pose, got {lw.shape}")
+            if np.any(np.isnan(lw)) or np.any(lw == np.inf) or not np.any(np.isfinite(lw)):
+                raise ValidationError("prev_log_weights must be finite or -inf, with at least one finite")
         lw = lw - logsumexp(lw)
         return logsumexp(lt + lw[None, :], axis=1)
 

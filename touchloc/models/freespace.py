@@ -18,7 +18,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from .._util import as_points, as_poses
-from .._validate import as_float, as_float_array, as_instance, as_positive_float
+from .._validate import as_float, as_float_array, as_instance, as_positive_float, as_sequence
 from ..errors import ValidationError
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
@@ -33,7 +33,7 @@ _RING = 8
 def _results_arrays(results):
     """Touches of executed results (duck-typed: ``.touch`` with origin, direction,
     max_travel, probe_radius; ``.travel``) as arrays."""
-    results = list(results)
+    results = as_sequence(results, "results", expected="a list of touch results")
     if not results:
         raise ValidationError("no touch results given")
     try:

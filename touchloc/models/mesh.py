@@ -8,7 +8,7 @@ import numpy as np
 import trimesh
 
 from .._util import as_points, as_rng
-from .._validate import as_bool, as_name, as_path, as_positive_float
+from .._validate import MAX_PARTICLES, as_bool, as_count, as_name, as_nonnegative_float, as_path, as_positive_float
 from ..errors import MeshError, ValidationError
 
 __all__ = ["MeshObject", "MeshRepairWarning", "MeshUnitsWarning"]
@@ -247,10 +247,8 @@ class MeshObject:
         faces : (n,) int
             Indices into :attr:`triangles`.
         """
-        if int(n) != n or n < 0:
-            raise ValidationError(f"n must be a non-negative integer, got {n}")
+        n = as_count(n, "n", min=0, max=MAX_PARTICLES, why="memory: 1e7 samples take 0.6 GB")
         rng = as_rng(rng)
-        n = int(n)
         area = self.mesh.area_faces[self.valid_faces]
         faces = rng.choice(len(area), size=n, p=area / area.sum())
         u = rng.random((n, 2))
@@ -269,7 +267,7 @@ class MeshObject:
         """
         from .symmetry import find_symmetries
 
-        key = ("symmetries", None if tol is None else float(tol))
+        key = ("symmetries", None if tol is None else as_positive_float(tol, "tol"))
         sym = self._cache.get(key)
         if sym is None:
             sym = find_symmetries(self, tol)
@@ -287,7 +285,7 @@ class MeshObject:
         from . import _kernels
         from ._kernels import BVH, build_bvh
 
-        key = ("bvh", float(f"{normal_weight:.2g}"))
+        key = ("bvh", float(f"{as_nonnegative_float(normal_weight, 'normal_weight'):.2g}"))
         tree = self._cache.get(key)
         if tree is None:
             tree = cached_structure("bvh", self, {"normal_weight": key[1]},  # on disk when slow to build

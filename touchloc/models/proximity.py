@@ -176,7 +176,7 @@ class ProximityModel(MeasurementModel):
         use_n = N is not None and self.sigma_nor is not None
         N = N if use_n else None
         w = self._weight(use_n)
-        method = method or self.method
+        method = _method(method) or self.method
         if method == "auto":
             method = "fast" if len(P) >= AUTO_FAST_PAIRS else "exact"
         if method == "bruteforce":
@@ -201,7 +201,7 @@ class ProximityModel(MeasurementModel):
         -------
         (N, K) float
         """
-        return self._contact_costs(as_poses(poses), _check_contacts(contacts), method)
+        return self._contact_costs(as_poses(poses), _check_contacts(contacts), _method(method))
 
     def _contact_costs(self, poses, contacts, method=None):
         """:meth:`contact_costs` for poses and contacts an estimator has already checked
@@ -284,6 +284,13 @@ def check_queries(points, normals=None):
     if np.any(norm < 1e-12):
         raise ValidationError(f"normals must be non-zero, row {int(np.flatnonzero(norm < 1e-12)[0])} is zero")
     return P, np.ascontiguousarray(N / norm[:, None])
+
+
+def _method(method):
+    """A likelihood method's name (or None for the model's own)."""
+    if method is not None and not isinstance(method, str):
+        raise ValidationError(f"method must be one of {METHODS} or None, got {type(method).__name__}")
+    return method
 
 
 def _check_contacts(contacts) -> Contacts:

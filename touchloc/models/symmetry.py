@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._validate import as_float_array, as_poses
+from .._validate import as_bool, as_float_array, as_nonnegative_float, as_poses, as_probability
 from ..errors import ValidationError
 
 __all__ = ["Symmetry", "find_symmetries", "surface_moments"]
@@ -65,6 +65,30 @@ class Symmetry:
     sphere: bool = False
     tol: float = 0.0
     quantile: float = 1.0
+
+    def __post_init__(self):
+        rots = as_float_array(self.rotations, "rotations")
+        rots = rots[None] if rots.shape == (3, 3) else rots
+        if rots.ndim != 3 or rots.shape[1:] != (3, 3) or len(rots) == 0:
+            raise ValidationError(f"rotations must be (G, 3, 3) with G >= 1, got shape {rots.shape}")
+        T = np.zeros((len(rots), 4, 4))
+        T[:, :3, :3], T[:, 3, 3] = rots, 1.0
+        as_poses(T, "rotations")   # proper rotations, not reflections
+        axis = self.axis
+        if axis is not None:
+            axis = as_float_array(axis, "axis", shape=(3,))
+            if abs(np.linalg.norm(axis) - 1.0) > 1e-6:
+                raise ValidationError(f"axis must be a unit vector, got norm {np.linalg.norm(axis):.6g}")
+        continuous, sphere = as_bool(self.continuous, "continuous"), as_bool(self.sphere, "sphere")
+        if continuous and not sphere and axis is None:
+            raise ValidationError("a continuous symmetry that is not a sphere's needs its axis")
+        object.__setattr__(self, "rotations", rots)
+        object.__setattr__(self, "center", as_float_array(self.center, "center", shape=(3,)))
+        object.__setattr__(self, "axis", axis)
+        object.__setattr__(self, "continuous", continuous)
+        object.__setattr__(self, "sphere", sphere)
+        object.__setattr__(self, "tol", as_nonnegative_float(self.tol, "tol"))
+        object.__setattr__(self, "quantile", as_probability(self.quantile, "quantile", open_low=True))
 
     @property
     def order(self) -> float:
