@@ -7,6 +7,7 @@ from typing import Iterable
 
 import numpy as np
 
+from ._validate import as_bool
 from ._validate import as_points, as_poses  # noqa: F401  (one implementation, re-exported)
 from .errors import ValidationError
 
@@ -31,6 +32,8 @@ def progress(iterable: Iterable, *, total=None, desc=None, enabled=None, leave=F
     line ``desc: i/total (elapsed)`` goes to stderr at most every ``interval`` seconds
     instead; ``enabled=False`` prints nothing.
     """
+    if enabled is not None:
+        enabled = as_bool(enabled, "progress")
     if enabled is None and not sys.stderr.isatty():
         return _log_progress(iterable, total, desc, interval)
     if not enabled:

@@ -121,7 +121,8 @@ class RotationDataset:
         return zip(self._splits, self.odometry.tolist())
 
     def angles(self, t: int) -> np.ndarray:
-        """Normal angles of sample ``t``, (K_t,) rad."""
+        """Normal angles of sample ``t``, (K_t,) rad (``t`` from 0; negative counts from the end)."""
+        t = as_count(t, "t", min=-len(self), max=len(self) - 1, why=f"the dataset has {len(self)} samples")
         return self._splits[t]
 
     def __repr__(self) -> str:
@@ -367,6 +368,16 @@ def save_recording(ds: RotationDataset, path) -> Path:
     """Write a data set as ``.csv`` or ``.npz`` (chosen by the suffix); returns the path."""
     ds = as_instance(ds, RotationDataset, "ds")
     path = as_path(path, "path", must_exist=False)
+    if path.suffix not in (".npz", ".csv"):
+        raise ValidationError(f"recording path must end in .csv or .npz, got {path.name!r}")
+    try:
+        _write_recording(ds, path)
+    except OSError as exc:
+        raise ValidationError(f"cannot write the recording {path}: {exc}") from None
+    return path
+
+
+def _write_recording(ds, path):
     if path.suffix == ".npz":
         extra = {}
         if ds.true_orientation is not None:
@@ -375,7 +386,7 @@ def save_recording(ds: RotationDataset, path) -> Path:
             extra["n_surfaces"] = np.int64(ds.n_surfaces)
         np.savez(path, time=ds.time, odometry=ds.odometry, normal_angles=ds.normal_angles,
                  sample_index=ds.sample_index, name=np.str_(ds.name), **extra)
-    elif path.suffix == ".csv":
+    else:
         truth = ds.true_orientation is not None
         with open(path, "w", newline="") as fh:
             if ds.name:
@@ -391,9 +402,6 @@ def save_recording(ds: RotationDataset, path) -> Path:
                     if truth:
                         row.append(repr(float(ds.true_orientation[i])))
                     w.writerow(row)
-    else:
-        raise ValidationError(f"recording path must end in .csv or .npz, got {path.name!r}")
-    return path
 
 
 def load_recording(path) -> RotationDataset:

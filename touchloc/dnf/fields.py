@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_count, as_float, as_instance, as_positive_float
+from .._validate import as_count, as_float, as_float_array, as_instance, as_positive_float
 from ..errors import ValidationError
 
 __all__ = [
@@ -224,7 +224,8 @@ class Field1D:
         Parameters
         ----------
         stimulus : float or (n,) float
-            External input ``S``.
+            External input ``S``. Checked for type and shape; NaN in, NaN out: it is not
+            scanned for NaN (this runs in every step).
 
         Returns
         -------
@@ -232,12 +233,14 @@ class Field1D:
             The output ``f(u)`` after the step.
         """
         p = self.params
+        stimulus = _stimulus(stimulus, (self.n,))
         du = -self.u + p.h + stimulus + self.lateral()
         self.u += self._rate * du
         return self.output()
 
     def peak_position(self, threshold: float = 0.5):
         """Circular centroid (rad) of the sites whose output exceeds ``threshold``, or None."""
+        threshold = as_float(threshold, "threshold")
         f = self.output()
         w = np.where(f > threshold, f, 0.0)
         if not w.any():
@@ -407,6 +410,8 @@ class Field2D:
 
     # -- dynamics ----------------------------------------------------------------------
     def _use_active(self, method=None) -> bool:
+        if method is not None and (not isinstance(method, str) or method not in ("active", "fft")):
+            raise ValidationError(f"method must be 'active', 'fft' or None, got {method!r}"[:200])
         if (method or self.method) != "active":
             return False
         rows, cols, _ = self.active_block()
@@ -449,10 +454,11 @@ class Field2D:
         stimulus : float, array broadcastable to ``shape``, or tuple of them
             External input; a tuple is summed term by term without forming the full sum
             first, e.g. ``(a[:, None], b[None, :])`` for two expanded 1-D fields.
+            Checked for type and shape; NaN in, NaN out: not scanned for NaN.
 
         Use :meth:`output` or :meth:`active_block` for the output after the step.
         """
-        terms = list(stimulus) if isinstance(stimulus, tuple) else [stimulus]
+        terms = [_stimulus(t, self.shape) for t in (stimulus if isinstance(stimulus, tuple) else (stimulus,))]
         ridges = (len(terms) == 2 and np.ndim(terms[0]) == 2 and np.ndim(terms[1]) == 2
                   and np.shape(terms[0]) == (self.shape[0], 1) and np.shape(terms[1]) == (1, self.shape[1]))
         if ridges and self._rate == 1.0 and self._use_active():
@@ -617,11 +623,34 @@ class MemoryTrace:
         self.P.fill(0.0)
 
     def step(self, f) -> np.ndarray:
-        """One Euler step of eq. 2 given the field output ``f`` ((n,) in [0, 1]); returns ``P``."""
+        """One Euler step of eq. 2 given the field output ``f`` ((n,) in [0, 1]); returns ``P``.
+
+        ``f`` is checked for its shape only; NaN in, NaN out: it is not scanned for NaN
+        (this runs in every step of the tracker)."""
         P = self.P
+        if not isinstance(f, np.ndarray) or f.dtype.kind != "f":
+            f = as_float_array(f, "f", finite=False)
+        if f.shape != P.shape:
+            raise ValidationError(f"f must be the field output, shape {P.shape}, got {f.shape}")
         dP = self.build * (f - P) * f - self.decay * P * (1.0 - f)
         P += (self.dt / self.tau) * dP
         return P
+
+
+def _stimulus(s, shape):
+    """An external input: a float or a float array broadcastable to ``shape`` (checked for
+    type and shape only; NaN in, NaN out)."""
+    if isinstance(s, (float, int, np.floating, np.integer)) and not isinstance(s, (bool, np.bool_)):
+        return s
+    if not (isinstance(s, np.ndarray) and s.dtype.kind == "f"):
+        s = as_float_array(s, "stimulus", finite=False)
+    try:
+        if np.broadcast_shapes(s.shape, shape) != tuple(shape):
+            raise ValueError
+    except ValueError:
+        raise ValidationError(f"stimulus must be a number or an array broadcastable to {tuple(shape)}, "
+                              f"got shape {s.shape}") from None
+    return s
 
 
 def expand(field, n_other: int, axis: int = 0) -> np.ndarray:

@@ -497,6 +497,9 @@ class OrientationTracker:
         memory : (T, n_sites) float or None
             Memory trace after each sample if ``record``.
         """
+        if not (callable(getattr(dataset, "samples", None)) and hasattr(dataset, "__len__")):
+            raise ValidationError(f"dataset must be a RotationDataset (samples() and len()), got {type(dataset).__name__}")
+        record = as_bool(record, "record")
         T = len(dataset)
         est = np.empty(T)
         mem = np.empty((T, self.n_sites)) if record else None

@@ -10,8 +10,8 @@ import os
 import threading
 from pathlib import Path
 
-from .._validate import as_bool, as_count, as_path
-from ..errors import ValidationError
+from .._validate import as_bool, as_callable, as_count, as_path, as_timeout
+from ..errors import TouchlocError, ValidationError
 from .sweep import DNFSweep, Sweep
 from .trial import DNF_COLUMNS, RESULT_COLUMNS, TIME_COLUMNS, run_dnf_trial, run_trial, warm
 
@@ -44,7 +44,7 @@ class SerialExecutor(cf.Executor):
 
     def submit(self, fn, /, *args, **kwargs):
         if self._shutdown:
-            raise RuntimeError("cannot submit after shutdown")
+            raise ExecutorShutdown("cannot submit after shutdown")
         f = cf.Future()
         try:
             f.set_result(fn(*args, **kwargs))
@@ -54,8 +54,19 @@ class SerialExecutor(cf.Executor):
             f.set_exception(exc)
         return f
 
+    def map(self, fn, *iterables, timeout=None, chunksize=1):
+        """:meth:`concurrent.futures.Executor.map`, with its arguments checked."""
+        fn = as_callable(fn, "fn")
+        timeout = as_timeout(timeout, "timeout", allow_none=True)
+        as_count(chunksize, "chunksize")
+        return super().map(fn, *iterables, timeout=timeout)
+
     def shutdown(self, wait=True, *, cancel_futures=False):
         self._shutdown = True
+
+
+class ExecutorShutdown(TouchlocError, RuntimeError):
+    """A task submitted to an executor that was shut down."""
 
 
 def _single_threaded(threads: int = 1, keys=()) -> None:

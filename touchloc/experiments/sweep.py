@@ -230,9 +230,13 @@ class Sweep:
         if not p.exists():
             raise ValidationError(f"sweep file not found: {p} (bundled sweeps: {', '.join(bundled_sweeps())})")
         try:
-            d = tomllib.loads(p.read_text())
+            d = tomllib.loads(p.read_text(encoding="utf-8"))
         except tomllib.TOMLDecodeError as exc:
             raise ValidationError(f"{p}: not valid TOML: {exc}") from exc
+        except UnicodeDecodeError as exc:
+            raise ValidationError(f"{p}: not a UTF-8 text file (byte {exc.start}); a sweep is a TOML file") from None
+        except OSError as exc:
+            raise ValidationError(f"cannot read the sweep file {p}: {exc}") from None
         return cls.from_dict(d)
 
     # -- the grid ----------------------------------------------------------------------

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_float_array, as_nonnegative_float, as_positive_float, as_sequence
+from .._validate import as_float, as_float_array, as_nonnegative_float, as_positive_float, as_sequence
 from ..errors import ValidationError
 
 __all__ = ["GuardedTouch", "HandTouch", "TouchResult", "ActionCost", "TravelDistance", "TravelTime", "fingers_of", "as_cost"]
@@ -70,7 +70,7 @@ class GuardedTouch:
 
     def point_at(self, travel: float) -> np.ndarray:
         """(3,) float: probe position after ``travel`` metres."""
-        return self.origin + float(travel) * self.direction
+        return self.origin + as_float(travel, "travel") * self.direction
 
     def __hash__(self):
         return hash((tuple(self.origin), tuple(self.direction), self.max_travel, self.probe_radius))

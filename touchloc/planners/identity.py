@@ -8,7 +8,8 @@ import numpy as np
 from scipy.special import logsumexp
 
 from .._util import as_rng
-from .._validate import as_count, as_mapping, as_nonnegative_float, as_positive_float, as_probability
+from .._validate import (as_count, as_mapping, as_nonnegative_float, as_positive_float, as_probability,
+                         as_sequence)
 from ..errors import PlanningError, ValidationError
 from .actions import GuardedTouch, as_cost
 from .lookahead import Plan
@@ -79,9 +80,17 @@ class IdentityPlanner:
         """
         t0 = time.perf_counter()
         rng = as_rng(rng)
-        cands = list(candidates)
+        cands = as_sequence(candidates, "candidates", expected="a list of GuardedTouch")
         if not cands or not all(isinstance(c, GuardedTouch) for c in cands):
             raise PlanningError("candidates must be a non-empty list of GuardedTouch")
+        from ..belief import ParticleBelief
+
+        beliefs = as_mapping(beliefs, "beliefs", of=ParticleBelief, expected="a dict of name -> ParticleBelief")
+        probabilities = as_mapping(probabilities, "probabilities", expected="a dict of name -> probability")
+        probabilities = {n: as_probability(p, f"probabilities[{n!r}]") for n, p in probabilities.items()}
+        missing = [n for n in self.objects if probabilities.get(n, 0.0) > 0 and n not in beliefs]
+        if missing:
+            raise ValidationError(f"beliefs lacks the objects {missing} that have a positive probability")
         names = [n for n in self.objects if probabilities.get(n, 0.0) > 0]
         if not names:
             raise PlanningError("no object has a positive identity probability")

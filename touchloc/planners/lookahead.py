@@ -30,7 +30,7 @@ import numpy as np
 
 from .._util import as_rng, progress
 from .._validate import (as_bool, as_count, as_nonnegative_float, as_positive_float,
-                         as_probability)
+                         as_probability, as_sequence)
 from ..errors import BeliefDegenerateError, PlanningError, ValidationError
 from ..models import MeshObject
 from .actions import as_cost
@@ -75,7 +75,7 @@ class Plan:
 
     def ranking(self, k: int = 10) -> list:
         """The k best candidates as (index, score) pairs, best first."""
-        order = np.argsort(-self.scores, kind="stable")[:k]
+        order = np.argsort(-self.scores, kind="stable")[:as_count(k, "k", min=0)]
         return [(int(i), float(self.scores[i])) for i in order]
 
     def table(self, k: int = 10) -> str:
@@ -101,7 +101,7 @@ class _Context:
         if len(belief) == 0:
             raise ValidationError("the belief has no particles")
         if not isinstance(candidates, (list, tuple)):
-            candidates = list(candidates)
+            candidates = as_sequence(candidates, "candidates", expected="a list of touches")
         t0 = time.perf_counter()
         self.fingers, self.owner = flatten_actions(candidates)
         self.candidates = list(candidates)
@@ -420,7 +420,7 @@ class RandomPlanner:
     def plan(self, belief, candidates, *, rng=None) -> Plan:
         rng = as_rng(rng)
         t0 = time.perf_counter()
-        cands = list(candidates)
+        cands = as_sequence(candidates, "candidates", expected="a list of touches")
         flatten_actions(cands)  # validates
         s = rng.random(len(cands))
         i = int(np.argmax(s))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._validate import as_float_array, as_positive_float
+from .._validate import as_float_array, as_instance, as_pose, as_poses, as_positive_float
 from ..errors import ValidationError
 
 __all__ = ["Utility", "NegEntropy", "KLDivergence", "TaskSuccess", "pose_features", "batched_entropy",
@@ -175,6 +175,12 @@ class TaskSuccess(Utility):
 
     def offsets(self, poses, ref_poses, region) -> np.ndarray:
         """(N, M, dim) offsets of poses from reference poses, per region dimension."""
+        from ..belief.region import PoseRegion
+
+        region = as_instance(region, PoseRegion, "region", allow_none=True)
+        return self._offsets(as_poses(poses, "poses"), as_poses(ref_poses, "ref_poses"), region)
+
+    def _offsets(self, poses, ref_poses, region):
         free = region.free_translation if region is not None else np.ones(3, bool)
         rot = region.rotation if region is not None else "full"
         dt = (poses[:, None, :3, 3] - ref_poses[None, :, :3, 3])[..., free]
@@ -187,7 +193,7 @@ class TaskSuccess(Utility):
         return np.concatenate([dt, w], axis=2)
 
     def prepare(self, poses, weights, region, rho):
-        off = self.offsets(poses, poses, region)
+        off = self._offsets(poses, poses, region)
         if off.shape[2] != len(self.tolerances):
             raise ValidationError(f"tolerances must have one entry per pose dimension ({off.shape[2]}), "
                                   f"got {len(self.tolerances)}")
@@ -201,11 +207,14 @@ class TaskSuccess(Utility):
 
     def success(self, belief, grasp_pose=None) -> float:
         """P(success) of a grasp made for ``grasp_pose`` (default: the best particle)."""
+        from ..belief.particles import ParticleBelief
+
+        belief = as_instance(belief, ParticleBelief, "belief")
         w = belief.weights
         if grasp_pose is None:
             ok = self.prepare(belief.poses, w, belief.region, belief.rho or 0.0)
             return float((w @ ok).max())
-        off = self.offsets(belief.poses, np.asarray(grasp_pose, dtype=float)[None], belief.region)[:, 0]
+        off = self._offsets(belief.poses, as_pose(grasp_pose, "grasp_pose")[None], belief.region)[:, 0]
         return float(w @ np.all(np.abs(off) <= self.tolerances, axis=1))
 
 

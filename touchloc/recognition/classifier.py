@@ -335,8 +335,13 @@ class LocalLinearMap:
         self.rng = rng
 
     def fit(self, P, T):
-        P = np.asarray(P, dtype=np.float64)
-        T = np.asarray(T, dtype=np.float64)
+        """Fit to inputs P (n, k) and targets T (n, m)."""
+        P = as_float_array(P, "P", shape=(None, None))
+        T = as_float_array(T, "T", shape=(None, None))
+        if len(P) == 0 or P.shape[1] == 0:
+            raise ValidationError(f"P must hold at least one sample of at least one feature, got shape {P.shape}")
+        if len(T) != len(P):
+            raise ValidationError(f"T must have one row per sample of P ({len(P)}), got shape {T.shape}")
         rng = as_rng(self.rng)
         self.nodes_, lab = aev_quantize(P, self.n_nodes, epochs=self.epochs, rng=rng)
         k = P.shape[1]
@@ -357,7 +362,10 @@ class LocalLinearMap:
         return self
 
     def predict(self, P):
-        P = np.asarray(P, dtype=np.float64)
+        """Outputs (n, m) for inputs P (n, k)."""
+        if not hasattr(self, "nodes_"):
+            raise NotFittedError("this LocalLinearMap is not fitted yet; call fit(P, T) first")
+        P = as_float_array(P, "P", shape=(None, self.nodes_.shape[1]))
         r = _nearest(P, self.nodes_)
         return self.outputs_[r] + np.einsum("nck,nk->nc", self.maps_[r], P - self.nodes_[r])
 
@@ -394,6 +402,7 @@ class _SequenceModel:
         With ``reject=True`` (needs a calibrated rejection threshold), sequences whose
         novelty score exceeds it get :attr:`unknown_label_` instead.
         """
+        reject = as_bool(reject, "reject")
         scores = self.predict_scores(X)
         labels = self.classes_[np.argmax(scores, axis=1)]
         if not reject:
@@ -407,7 +416,11 @@ class _SequenceModel:
 
     def score(self, X, y) -> float:
         """Fraction of sequences classified correctly."""
-        return float(np.mean(self.predict(X) == np.asarray(y)))
+        pred = self.predict(X)
+        y = np.asarray(y)
+        if y.shape != pred.shape:
+            raise ValidationError(f"y must be ({len(pred)},) labels, one per sequence of X, got shape {y.shape}")
+        return float(np.mean(pred == y))
 
     def _default_unknown(self):
         if self.unknown_label is not None:

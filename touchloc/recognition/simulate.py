@@ -45,8 +45,9 @@ import numpy as np
 from scipy import ndimage
 
 from .._util import as_rng, progress
-from .._validate import as_bool, as_count, as_float, as_nonnegative_float, as_positive_float
+from .._validate import as_bool, as_count, as_float, as_instance, as_nonnegative_float, as_pose, as_positive_float
 from ..errors import ValidationError
+from ..models import MeshObject
 
 __all__ = ["PadConfig", "Scan", "TactileScanner", "simulate_dataset"]
 
@@ -216,14 +217,13 @@ class TactileScanner:
         -------
         Scan
         """
+        obj = as_instance(obj, MeshObject, "obj")
         rng = as_rng(rng)
         cfg = self.config
         if object_pose is None:
             object_pose = self.random_object_pose(obj, rng=rng)
         else:
-            object_pose = np.asarray(object_pose, dtype=np.float64)
-            if object_pose.shape != (4, 4) or not np.all(np.isfinite(object_pose)):
-                raise ValidationError(f"object_pose must be a finite (4, 4) matrix, got {object_pose.shape}")
+            object_pose = as_pose(object_pose, "object_pose")
         gain = 1.0 + cfg.gain_jitter * rng.standard_normal((cfg.n_texels, cfg.n_texels))
         hull = self._hull(obj) @ object_pose[:3, :3].T + object_pose[:3, 3]
 
@@ -277,15 +277,16 @@ class TactileScanner:
 
     def scan_many(self, obj, n_scans: int, *, rng=None, progress_bar=None) -> np.ndarray:
         """(n_scans, n_frames, n_texels, n_texels) uint16: independent scans of ``obj``."""
-        if int(n_scans) != n_scans or n_scans < 1:
-            raise ValidationError(f"n_scans must be a positive integer, got {n_scans}")
+        obj = as_instance(obj, MeshObject, "obj")
+        n_scans = as_count(n_scans, "n_scans", max=1_000_000, why="each scan is a simulated grasp sequence")
         rng = as_rng(rng)
-        out = [self.scan(obj, rng=rng).frames for _ in progress(range(int(n_scans)), desc=getattr(obj, "name", "scan"),
+        out = [self.scan(obj, rng=rng).frames for _ in progress(range(n_scans), desc=getattr(obj, "name", "scan"),
                                                                 enabled=progress_bar)]
         return np.stack(out)
 
     def random_object_pose(self, obj, *, rng=None) -> np.ndarray:
         """(4, 4) float: the object on the table, shifted and turned by the jitter."""
+        obj = as_instance(obj, MeshObject, "obj")
         rng = as_rng(rng)
         cfg = self.config
         b = obj.bounds
