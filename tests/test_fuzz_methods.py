@@ -32,9 +32,15 @@ def _in_a_scratch_directory(tmp_path_factory):
     write files named by their arguments: keep them out of the working tree."""
     import os
 
+    import test_fuzz_public
+
+    # the function suite's world writes files where it is first built: build our own here,
+    # and leave none behind for the function suite, whose directory is another one
     old = os.getcwd()
+    test_fuzz_public._WORLD = None
     os.chdir(tmp_path_factory.mktemp("fuzz-methods"))
     yield
+    test_fuzz_public._WORLD = None
     os.chdir(old)
 
 
