@@ -9,13 +9,16 @@ without NaN, within the time limit. Each method's ordinary call must succeed, so
 hostile value meets a call that would otherwise have worked. A fresh instance serves every
 call, so that a hostile value cannot be masked by an earlier call's side effects.
 
-The hardware package's classes are not here yet: their methods talk to a device, and a
-hostile call there needs an emulator on the other end of the port (test_hw_*.py and the
-reliability benchmark drive the drivers through corrupted replies and lost devices).
+The drivers (:data:`DEVICES`) are not here: their methods talk to a device, and a hostile
+call there needs an emulator on the other end of the port (test_hw_*.py and the
+reliability benchmark drive them through corrupted replies and lost devices). The rest of
+the hardware package (kinematics, the packet parser, the session log, the executor's
+planning) is.
 """
 
 from __future__ import annotations
 
+import enum
 import inspect
 import warnings
 
@@ -24,7 +27,7 @@ import pytest
 
 pytest.importorskip("hypothesis")
 
-from test_fuzz_public import BAD, CHEAP, _call_kwargs, _mapping_args, run_one, world  # noqa: E402
+from test_fuzz_public import BAD, CHEAP, _call_kwargs, _hardware_args, _mapping_args, run_one, world  # noqa: E402
 
 @pytest.fixture(autouse=True, scope="module")
 def _in_a_scratch_directory(tmp_path_factory):
@@ -45,7 +48,11 @@ def _in_a_scratch_directory(tmp_path_factory):
 
 
 METHOD_MODULES = ["touchloc.models", "touchloc.belief", "touchloc.mapping", "touchloc.planners", "touchloc.dnf",
-                  "touchloc.recognition", "touchloc.experiments"]
+                  "touchloc.recognition", "touchloc.experiments", "touchloc.hardware"]
+
+#: hardware classes whose methods talk to a device: the driver tests and the reliability
+#: benchmark run them against the emulators (corrupted replies, lost devices)
+DEVICES = {"hardware.SDH2", "hardware.DSACON32m", "hardware.HandWorld"}
 
 #: classes that only define an interface (their methods raise NotImplementedError by design)
 INTERFACES = {"models.MeasurementModel", "models.FreeSpaceBase", "planners.Utility"}
@@ -55,6 +62,9 @@ EXCLUDED = {
     f"planners.{cls}.{m}": "the planner's callback protocol for utilities: the planner calls it on its own "
                            "arrays in its inner loop; users implement it rather than call it"
     for cls in ("NegEntropy", "KLDivergence", "TaskSuccess") for m in ("prepare", "values", "subset")
+} | {
+    f"hardware.GuardedTouchExecutor.{m}": "moves the hand: run against the emulator by the driver tests"
+    for m in ("execute", "execute_action")
 }
 
 
@@ -208,6 +218,11 @@ INSTANCES = {
 
 _EYE4 = np.eye(4)
 
+#: ordinary values by name for the hardware methods: finger 0 at a 0.3 rad base angle, its
+#: distal pad, a point of its plane in reach, and a touch along that plane
+_HARDWARE = dict(finger=0, a0=0.3, matrix=1, x=1.0, y=2.0, r=0.08, z=0.1, start=(0.05, 0.12), end=(0.09, 0.12),
+                 name="fuzz")
+
 #: ordinary values for one method where the values by name do not fit it
 ARGS = {
     "models.Contacts.concatenate": lambda w: dict(items=[w["contacts"], w["contacts"]]),
@@ -243,6 +258,13 @@ ARGS = {
     "dnf.RotationDataset.angles": dict(t=0),
     "recognition.TactileScanner.scan_many": dict(n_scans=1),
     "experiments.SerialExecutor.map": dict(fn=abs),
+    "hardware.SDH2Kinematics.with_matrix_info": lambda w: dict(infos=[__import__("touchloc.hardware").hardware.MatrixInfo(
+        error=0, texel_width=3.4, texel_height=3.4, cells_x=6, cells_y=13, uid=b"", hw_revision=0, center=(0, 0, 0),
+        theta=(0, 0, 0), fullscale=4095.0, features=0)] * 6),
+    "hardware.SDH2Kinematics.touch_plane": lambda w: dict(origin=w["kinematics"].plane_to_hand(0, 0.3, 0.05, 0.12),
+                                                          direction=w["kinematics"].closing_direction(0, 0.3)),
+    "hardware.GuardedTouchExecutor.plan": lambda w: dict(touch=w["executor"].touch_pool(1, rng=0)[0], finger=None),
+    "hardware.PadLayout.local_coordinates": dict(x=1.0, y=2.0),
     "recognition.LocalLinearMap.fit": dict(T=np.random.default_rng(0).normal(size=(12, 2))),
     "experiments.Sweep.from_dict": dict(d={"meshes": ["can"], "contacts": [3], "seeds": 1}),
     "experiments.Sweep.from_toml": lambda w: dict(path=(_sweep_files(w), "fuzz-sweep.toml")[1]),
@@ -267,7 +289,7 @@ def _instance_builders():
         for name in mod.__all__:
             cls = getattr(mod, name)
             key = f"{short}.{name}"
-            if not inspect.isclass(cls) or issubclass(cls, BaseException) or key in INTERFACES:
+            if not inspect.isclass(cls) or issubclass(cls, (BaseException, enum.Enum)) or key in INTERFACES | DEVICES:
                 continue
             variants = [k for k in INSTANCES if k == key or k.startswith(key + "[")]
             if variants:
@@ -311,6 +333,8 @@ def _call(entry, target, bad, time_limit_s=3.0):
         obj = build(w)
     extra = ARGS.get(name)
     values = _values(w)
+    if name.startswith("hardware."):
+        values = {**values, **_hardware_args(w), **_HARDWARE}
     if callable(extra):
         values = {**values, **extra(values)}
     elif extra:

@@ -125,7 +125,8 @@ class PacketParser:
         self.skipped = 0
 
     def feed(self, data: bytes) -> None:
-        self.buf += data
+        """Append received bytes."""
+        self.buf += as_bytes(data, "data")
 
     def reset(self) -> None:
         self.buf.clear()

@@ -145,6 +145,10 @@ class GuardedTouchExecutor:
             z axis, from the proximal joint (m).
         """
         kin = self.kinematics
+        start = as_float_array(start, "start", shape=(2,), expected="(r, z) in the finger plane (m)")
+        end = as_float_array(end, "end", shape=(2,), expected="(r, z) in the finger plane (m)")
+        if not isinstance(name, str):
+            raise ValidationError(f"name must be a str, got {type(name).__name__}")
         p = kin.plane_to_hand(finger, a0, [start[0], end[0]], [start[1], end[1]])
         pw = p @ self.hand_pose[:3, :3].T + self.hand_pose[:3, 3]
         d = pw[1] - pw[0]

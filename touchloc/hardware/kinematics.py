@@ -19,11 +19,13 @@ offset): pass the values the tactile controller reports (:meth:`SDH2Kinematics.w
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_bool, as_count, as_float, as_float_array, as_positive_float
+from .._validate import (as_bool, as_count, as_float, as_float_array, as_nonnegative_float, as_positive_float,
+                         as_sequence)
 from ..errors import ValidationError
 
 __all__ = ["PadLayout", "SDH2Kinematics", "FINGER_AXES", "DEFAULT_PADS"]
@@ -91,8 +93,8 @@ class PadLayout:
 
     def local_coordinates(self, x, y):
         """(along, across) in metres of texel coordinates (column x, row y; may be fractional)."""
-        x = np.asarray(x, dtype=np.float64)
-        y = np.asarray(y, dtype=np.float64)
+        x = as_float_array(x, "x")
+        y = as_float_array(y, "y")
         if self.row0_at_tip:
             along = self.start + (self.cells_y - 0.5 - y) * self.texel_height
         else:
@@ -154,11 +156,20 @@ class SDH2Kinematics:
 
     def with_matrix_info(self, infos) -> "SDH2Kinematics":
         """A copy whose pads take cells and texel sizes from the controller's matrix info."""
+        infos = as_sequence(infos, "infos", min_len=len(self.pads), max_len=len(self.pads),
+                            expected=f"{len(self.pads)} matrix infos (DSACON32m.matrix_info)")
         pads = []
-        for pad, info in zip(self.pads, infos):
-            pads.append(replace(pad, cells_x=int(info.cells_x), cells_y=int(info.cells_y),
-                                texel_width=float(info.texel_width) * 1e-3,
-                                texel_height=float(info.texel_height) * 1e-3))
+        for m, (pad, info) in enumerate(zip(self.pads, infos)):
+            try:
+                cx, cy = info.cells_x, info.cells_y
+                tw, th = info.texel_width, info.texel_height
+            except AttributeError:
+                raise ValidationError(f"infos[{m}] must have cells_x, cells_y, texel_width and texel_height, "
+                                      f"got {type(info).__name__}") from None
+            pads.append(replace(pad, cells_x=as_count(cx, f"infos[{m}].cells_x", max=1024),
+                                cells_y=as_count(cy, f"infos[{m}].cells_y", max=1024),
+                                texel_width=as_positive_float(tw, f"infos[{m}].texel_width (mm)") * 1e-3,
+                                texel_height=as_positive_float(th, f"infos[{m}].texel_height (mm)") * 1e-3))
         return SDH2Kinematics(l1=self.l1, l2=self.l2, pads=pads)
 
     @staticmethod
@@ -167,15 +178,22 @@ class SDH2Kinematics:
 
     @staticmethod
     def _finger(finger) -> int:
-        if finger not in (0, 1, 2):
-            raise ValidationError(f"finger must be 0, 1 (thumb) or 2, got {finger!r}")
+        if isinstance(finger, (bool, np.bool_)) or not isinstance(finger, (numbers.Integral, np.integer)) \
+                or int(finger) not in (0, 1, 2):
+            raise ValidationError(f"finger must be 0, 1 (thumb) or 2, got {type(finger).__name__} {finger!r}"[:200])
         return int(finger)
+
+    def _matrix(self, matrix) -> int:
+        if isinstance(matrix, (bool, np.bool_)) or not isinstance(matrix, (numbers.Integral, np.integer)) \
+                or not 0 <= int(matrix) < len(self.pads):
+            raise ValidationError(f"matrix must be 0..{len(self.pads) - 1} (2 * finger + part), "
+                                  f"got {type(matrix).__name__} {matrix!r}"[:200])
+        return int(matrix)
 
     def closing_direction(self, finger: int, a0: float) -> np.ndarray:
         """(3,) unit vector c: the horizontal direction finger ``finger`` closes towards."""
         f = self._finger(finger)
-        if f == 1:
-            a0 = 0.0
+        a0 = 0.0 if f == 1 else as_float(a0, "a0")
         fx, fy = _FAC[f]
         return np.array([fx * math.sin(a0), fy * math.cos(a0), 0.0])
 
@@ -207,9 +225,8 @@ class SDH2Kinematics:
 
         ``origin`` is the joint the pad's link starts at, moved onto the pad surface.
         """
-        if matrix not in range(6):
-            raise ValidationError(f"matrix must be 0..5 (2 * finger + part), got {matrix!r}")
-        f, part = divmod(int(matrix), 2)
+        matrix = self._matrix(matrix)
+        f, part = divmod(matrix, 2)
         ch = self.finger_chain(angles, f)
         pad = self.pads[matrix]
         joint = ch["base"] if part == 0 else ch["distal_joint"]
@@ -219,6 +236,7 @@ class SDH2Kinematics:
 
     def texel_points(self, angles, matrix: int) -> np.ndarray:
         """(cells_y, cells_x, 3) float: texel centres of pad ``matrix`` on its surface (H)."""
+        matrix = self._matrix(matrix)
         key = ("texels", matrix)
         grid = self._cache.get(key)
         if grid is None:
@@ -232,7 +250,7 @@ class SDH2Kinematics:
     def pad_point(self, angles, matrix: int, x, y) -> np.ndarray:
         """(..., 3) float: points on pad ``matrix`` at texel coordinates (x column, y row)."""
         o, u, k, _ = self.pad_frame(angles, matrix)
-        along, across = self.pads[matrix].local_coordinates(x, y)
+        along, across = self.pads[self._matrix(matrix)].local_coordinates(x, y)
         return o + along[..., None] * u + across[..., None] * k
 
     def pad_normal(self, angles, matrix: int) -> np.ndarray:
@@ -256,8 +274,8 @@ class SDH2Kinematics:
     def plane_to_hand(self, finger: int, a0: float, r, z) -> np.ndarray:
         """(..., 3): points of the finger plane (r along c, z along H's z from the base) in H."""
         c = self.closing_direction(finger, a0)
-        r = np.asarray(r, dtype=np.float64)
-        z = np.asarray(z, dtype=np.float64)
+        r = as_float_array(r, "r")
+        z = as_float_array(z, "z")
         return self.bases[self._finger(finger)] + r[..., None] * c + z[..., None] * _Z
 
     def planar_ik(self, finger: int, r: float, z: float, *, limits=None, prefer=None):
@@ -280,6 +298,12 @@ class SDH2Kinematics:
         (a1, a2) or None when unreachable within the limits.
         """
         s, off = self.probe_offset(finger)
+        r, z = as_float(r, "r"), as_float(z, "z")
+        if limits is not None:
+            lim = as_float_array(limits, "limits", shape=(2, 2), expected="(lo (2,), hi (2,)) angles (rad)")
+            limits = (lim[0], lim[1])
+        if prefer is not None:
+            prefer = as_float_array(prefer, "prefer", shape=(2,))
         L2 = math.hypot(s, off)
         phi = math.atan2(off, s)
         l1 = self.l1
@@ -309,9 +333,14 @@ class SDH2Kinematics:
         (within ``tol`` metres at the origin and ``tol`` in the direction).
         """
         f = self._finger(finger)
-        o = np.asarray(origin, dtype=np.float64) - self.bases[f]
-        d = np.asarray(direction, dtype=np.float64)
+        o = as_float_array(origin, "origin", shape=(3,)) - self.bases[f]
+        d = as_float_array(direction, "direction", shape=(3,))
+        if not np.linalg.norm(d) > 0:
+            raise ValidationError("direction must not be zero")
         d = d / np.linalg.norm(d)
+        lim = as_float_array(a0_limits, "a0_limits", shape=(2,))
+        a0_limits = (float(lim[0]), float(lim[1]))
+        tol = as_nonnegative_float(tol, "tol")
         if f == 1:
             cands = [0.0]
         else:

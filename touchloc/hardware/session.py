@@ -14,6 +14,7 @@ and keeps every complete record.
 from __future__ import annotations
 
 import json
+import numbers
 import os
 import time
 import warnings
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_float_array, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
@@ -105,6 +107,13 @@ class SessionLog:
         """Write one touch and flush it to disk."""
         if not isinstance(result, TouchResult):
             raise ValidationError(f"SessionLog.append needs a TouchResult, got {type(result).__name__}")
+        if self._fh.closed:
+            raise ValidationError("this SessionLog is closed")
+        if finger is not None and (isinstance(finger, (bool, np.bool_)) or
+                                   not isinstance(finger, (numbers.Integral, np.integer))):
+            raise ValidationError(f"finger must be an int or None, got {type(finger).__name__}")
+        angles = None if angles is None else as_float_array(angles, "angles", shape=(None,))
+        hand_pose = None if hand_pose is None else as_pose(hand_pose, "hand_pose")
         t = result.touch
         c = result.contact
         rec = {
@@ -121,7 +130,10 @@ class SessionLog:
             "hand_pose": _list(hand_pose),
             "extra": extra,
         }
-        line = json.dumps(rec, separators=(",", ":"), default=_default) + "\n"
+        try:
+            line = json.dumps(rec, separators=(",", ":"), default=_default, allow_nan=False) + "\n"
+        except (TypeError, ValueError) as exc:
+            raise ValidationError(f"a session record must hold finite numbers, arrays and text only: {exc}") from None
         self._fh.write(line)
         self._fh.flush()
         if self.fsync:
