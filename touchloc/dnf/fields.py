@@ -30,6 +30,7 @@ so it builds up towards ``f`` where the field's output ``f`` is high (at rate
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -110,7 +111,8 @@ def sigmoid(u, beta: float = 4.0):
         Output in [0, 1], same dtype as ``u`` for float inputs. NaN in, NaN out: ``u`` is
         not scanned for NaN, since this runs in every field step.
     """
-    beta = as_positive_float(beta, "beta")
+    if not (type(beta) is float and 0.0 < beta < math.inf):   # a plain float slope needs no more checks
+        beta = as_positive_float(beta, "beta")
     u = np.asarray(u)
     if u.dtype.kind not in "biuf":
         raise ValidationError(f"u must be a real array, got dtype {u.dtype}")
@@ -640,16 +642,14 @@ class MemoryTrace:
 def _stimulus(s, shape):
     """An external input: a float or a float array broadcastable to ``shape`` (checked for
     type and shape only; NaN in, NaN out)."""
-    if isinstance(s, (float, int, np.floating, np.integer)) and not isinstance(s, (bool, np.bool_)):
+    if type(s) is float or (isinstance(s, (int, np.floating, np.integer)) and not isinstance(s, (bool, np.bool_))):
         return s
     if not (isinstance(s, np.ndarray) and s.dtype.kind == "f"):
         s = as_float_array(s, "stimulus", finite=False)
-    try:
-        if np.broadcast_shapes(s.shape, shape) != tuple(shape):
-            raise ValueError
-    except ValueError:
+    sh = s.shape
+    if sh != shape and (len(sh) > len(shape) or any(a != 1 and a != b for a, b in zip(sh[::-1], shape[::-1]))):
         raise ValidationError(f"stimulus must be a number or an array broadcastable to {tuple(shape)}, "
-                              f"got shape {s.shape}") from None
+                              f"got shape {sh}")
     return s
 
 
