@@ -9,11 +9,10 @@ without NaN, within the time limit. Each method's ordinary call must succeed, so
 hostile value meets a call that would otherwise have worked. A fresh instance serves every
 call, so that a hostile value cannot be masked by an earlier call's side effects.
 
-The drivers (:data:`DEVICES`) are not here: their methods talk to a device, and a hostile
-call there needs an emulator on the other end of the port (test_hw_*.py and the
-reliability benchmark drive them through corrupted replies and lost devices). The rest of
-the hardware package (kinematics, the packet parser, the session log, the executor's
-planning) is.
+The SDH-2 and DSACON32m drivers are called on one emulated rig shared by the module
+(the emulators speak the devices' bytes over loopback TCP), so a hostile call must also
+leave the driver usable. Left out (:data:`DEVICES`, :data:`EXCLUDED`): what runs a whole
+guarded touch per call, which test_hw_touch.py runs on the emulator.
 """
 
 from __future__ import annotations
@@ -43,6 +42,8 @@ def _in_a_scratch_directory(tmp_path_factory):
     test_fuzz_public._WORLD = None
     os.chdir(tmp_path_factory.mktemp("fuzz-methods"))
     yield
+    if _RIG:
+        _RIG.pop("rig").close()
     test_fuzz_public._WORLD = None
     os.chdir(old)
 
@@ -50,9 +51,8 @@ def _in_a_scratch_directory(tmp_path_factory):
 METHOD_MODULES = ["touchloc.models", "touchloc.belief", "touchloc.mapping", "touchloc.planners", "touchloc.dnf",
                   "touchloc.recognition", "touchloc.experiments", "touchloc.hardware"]
 
-#: hardware classes whose methods talk to a device: the driver tests and the reliability
-#: benchmark run them against the emulators (corrupted replies, lost devices)
-DEVICES = {"hardware.SDH2", "hardware.DSACON32m", "hardware.HandWorld"}
+#: hardware classes left out: a whole guarded touch per call (test_hw_touch runs it on the emulator)
+DEVICES = {"hardware.HandWorld"}
 
 #: classes that only define an interface (their methods raise NotImplementedError by design)
 INTERFACES = {"models.MeasurementModel", "models.FreeSpaceBase", "planners.Utility"}
@@ -63,9 +63,9 @@ EXCLUDED = {
                            "arrays in its inner loop; users implement it rather than call it"
     for cls in ("NegEntropy", "KLDivergence", "TaskSuccess") for m in ("prepare", "values", "subset")
 } | {
-    f"hardware.GuardedTouchExecutor.{m}": "moves the hand: run against the emulator by the driver tests"
+    f"hardware.GuardedTouchExecutor.{m}": "a whole guarded touch per call: test_hw_touch runs it on the emulator"
     for m in ("execute", "execute_action")
-}
+} | {"hardware.SDH2.over_can": "a constructor that connects over a CAN bus: test_hw_sdh2 runs it on the virtual bus"}
 
 
 def _hits(w):
@@ -185,6 +185,24 @@ def _sweep_files(w):
     return w
 
 
+#: one emulated hand with tactile pads, served over loopback TCP, for the whole module
+_RIG: dict = {}
+
+
+def _device(kind):
+    """The SDH-2 or DSACON32m driver of the module's emulated rig (the drivers and the
+    emulators are shared by every call: a hostile call must leave them usable)."""
+    def build(w):
+        if not _RIG:
+            from touchloc.hardware.emulator import EmulatedRig
+
+            rig = _RIG["rig"] = EmulatedRig(hand_transport="tcp", tactile_transport="tcp", time_scale=50.0).start()
+            _RIG["hand"] = rig.open_hand(timeout=0.5)
+            _RIG["tactile"] = rig.open_tactile(timeout=0.5)
+        return _RIG[kind]
+    return build
+
+
 def _symmetry(w):
     from touchloc.models import Symmetry
 
@@ -214,14 +232,20 @@ INSTANCES = {
     "recognition.SequenceClassifier": _fitted("SequenceClassifier"),
     "recognition.NearestNeighbourClassifier": _fitted("NearestNeighbourClassifier"),
     "recognition.LocalLinearMap": _llm,
+    "hardware.SDH2": _device("hand"),
+    "hardware.DSACON32m": _device("tactile"),
 }
 
 _EYE4 = np.eye(4)
 
 #: ordinary values by name for the hardware methods: finger 0 at a 0.3 rad base angle, its
-#: distal pad, a point of its plane in reach, and a touch along that plane
+#: distal pad, a point of its plane in reach, and a touch along that plane; for the drivers,
+#: a posture inside the limits, a harmless query, slow motions, and streaming left on
 _HARDWARE = dict(finger=0, a0=0.3, matrix=1, x=1.0, y=2.0, r=0.08, z=0.1, start=(0.05, 0.12), end=(0.09, 0.12),
-                 name="fuzz")
+                 name="fuzz", angles=np.radians([60.0, -10, 10, -10, 10, -10, 10]), cmd="v", timeout=0.5, mode=0,
+                 preset=1, close=0.5, velocity=20.0, accelerations=np.full(7, 0.5), velocities=np.full(7, 0.1),
+                 poll=0.005, on=None, framerate=30, rle=True, n=1, skip_bad=False, m=1, value=0.5,
+                 persistent=False, all_matrices=False, reset=False, wait=False)
 
 #: ordinary values for one method where the values by name do not fit it
 ARGS = {
@@ -265,6 +289,9 @@ ARGS = {
                                                           direction=w["kinematics"].closing_direction(0, 0.3)),
     "hardware.GuardedTouchExecutor.plan": lambda w: dict(touch=w["executor"].touch_pool(1, rng=0)[0], finger=None),
     "hardware.PadLayout.local_coordinates": dict(x=1.0, y=2.0),
+    "hardware.DSACON32m.set_threshold": dict(value=10),
+    "hardware.DSACON32m.configure_acquisition": dict(start=True),
+    "hardware.SDH2.grip": dict(velocity=100.0),       # wait=True (a valid value) then waits under a second
     "recognition.LocalLinearMap.fit": dict(T=np.random.default_rng(0).normal(size=(12, 2))),
     "experiments.Sweep.from_dict": dict(d={"meshes": ["can"], "contacts": [3], "seeds": 1}),
     "experiments.Sweep.from_toml": lambda w: dict(path=(_sweep_files(w), "fuzz-sweep.toml")[1]),

@@ -632,12 +632,14 @@ class SDH2:
 
         Returns the expected duration (s).
         """
-        try:
-            p = GripPreset(int(preset))
-        except (ValueError, TypeError):
-            raise ValidationError(f"preset must be 0..3 (centrical, parallel, cylindrical, spherical), got {preset!r}") from None
-        from .._validate import as_float, as_probability
+        from .._validate import as_count, as_float, as_probability
 
+        try:
+            p = GripPreset(as_count(preset, "preset", min=0, max=3))
+        except ValidationError:
+            raise ValidationError("preset must be 0..3 (centrical, parallel, cylindrical, spherical), "
+                                  f"got {type(preset).__name__} {preset!r}"[:200]) from None
+        wait = as_bool(wait, "wait")
         close = as_probability(close, "close")
         velocity = as_float(velocity, "velocity", low=0.0, low_open=True, high=100.0)
         self.command(f"selgrip={int(p)}")
