@@ -19,7 +19,6 @@ offset): pass the values the tactile controller reports (:meth:`SDH2Kinematics.w
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -178,17 +177,10 @@ class SDH2Kinematics:
 
     @staticmethod
     def _finger(finger) -> int:
-        if isinstance(finger, (bool, np.bool_)) or not isinstance(finger, (numbers.Integral, np.integer)) \
-                or int(finger) not in (0, 1, 2):
-            raise ValidationError(f"finger must be 0, 1 (thumb) or 2, got {type(finger).__name__} {finger!r}"[:200])
-        return int(finger)
+        return as_count(finger, "finger", min=0, max=2, why="0, 1 (the thumb) or 2")
 
     def _matrix(self, matrix) -> int:
-        if isinstance(matrix, (bool, np.bool_)) or not isinstance(matrix, (numbers.Integral, np.integer)) \
-                or not 0 <= int(matrix) < len(self.pads):
-            raise ValidationError(f"matrix must be 0..{len(self.pads) - 1} (2 * finger + part), "
-                                  f"got {type(matrix).__name__} {matrix!r}"[:200])
-        return int(matrix)
+        return as_count(matrix, "matrix", min=0, max=len(self.pads) - 1, why="2 * finger + part")
 
     def closing_direction(self, finger: int, a0: float) -> np.ndarray:
         """(3,) unit vector c: the horizontal direction finger ``finger`` closes towards."""

@@ -14,7 +14,6 @@ and keeps every complete record.
 from __future__ import annotations
 
 import json
-import numbers
 import os
 import time
 import warnings
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_float_array, as_pose
+from .._validate import as_count, as_float_array, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
@@ -109,9 +108,7 @@ class SessionLog:
             raise ValidationError(f"SessionLog.append needs a TouchResult, got {type(result).__name__}")
         if self._fh.closed:
             raise ValidationError("this SessionLog is closed")
-        if finger is not None and (isinstance(finger, (bool, np.bool_)) or
-                                   not isinstance(finger, (numbers.Integral, np.integer))):
-            raise ValidationError(f"finger must be an int or None, got {type(finger).__name__}")
+        finger = None if finger is None else as_count(finger, "finger", min=0)
         angles = None if angles is None else as_float_array(angles, "angles", shape=(None,))
         hand_pose = None if hand_pose is None else as_pose(hand_pose, "hand_pose")
         t = result.touch
