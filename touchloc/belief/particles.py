@@ -49,6 +49,18 @@ def multinomial_resample(weights: np.ndarray, n: int, rng) -> np.ndarray:
     return rng.choice(len(weights), size=n, p=weights)
 
 
+def _normalised(lw: np.ndarray) -> np.ndarray:
+    """(N,) log-weights normalised to sum to one in probability, or BeliefDegenerateError."""
+    if np.any(np.isnan(lw)) or np.any(lw == np.inf):
+        raise BeliefDegenerateError("log_weights contain NaN or +inf: the likelihood is broken")
+    top = lw.max()
+    if not np.isfinite(top):
+        raise BeliefDegenerateError(
+            "every particle has zero weight (all log-likelihoods are -inf): no pose in "
+            "the region explains the measurements")
+    return lw - (top + np.log(np.sum(np.exp(lw - top))))
+
+
 class ParticleBelief:
     """A belief over object poses represented by weighted particles.
 
@@ -86,19 +98,15 @@ class ParticleBelief:
             lw = as_float_array(log_weights, "log_weights", finite=False).reshape(-1)
             if lw.shape != (len(P),):
                 raise ValidationError(f"log_weights must be ({len(P)},), got {lw.shape}")
-            if np.any(np.isnan(lw)) or np.any(lw == np.inf):
-                raise BeliefDegenerateError("log_weights contain NaN or +inf: the likelihood is broken")
-            top = lw.max()
-            if not np.isfinite(top):
-                raise BeliefDegenerateError(
-                    "every particle has zero weight (all log-likelihoods are -inf): no pose in "
-                    "the region explains the measurements")
-            lw = lw - (top + np.log(np.sum(np.exp(lw - top))))
+            lw = _normalised(lw)
         region = as_instance(region, PoseRegion, "region", allow_none=True)
         resolution = None if resolution is None else as_positive_float(resolution, "resolution")
         info = {} if info is None else as_mapping(info, "info")
         degenerate = as_bool(degenerate, "degenerate")
         rho = None if rho is None else as_positive_float(rho, "rho (m)")
+        self._set(P, lw, region, resolution, info, degenerate, rho)
+
+    def _set(self, P, lw, region, resolution, info, degenerate, rho):
         self.poses = P
         self.log_weights = lw
         self.region = region
@@ -108,6 +116,18 @@ class ParticleBelief:
         if rho is None and region is not None:
             rho = region.rho
         self.rho = rho
+
+    @classmethod
+    def _trusted(cls, poses, log_weights, region=None, resolution=None, info=None):
+        """A belief from an estimator's own particles: (N, 4, 4) rigid poses it made, and
+        (N,) float log-weights (or None), which are checked and normalised as the constructor
+        does. The poses are not re-validated: the estimators build one belief per scale or
+        tempering stage, and re-checking every rotation took about a twentieth of a
+        30-contact localisation."""
+        b = cls.__new__(cls)
+        lw = np.full(len(poses), -np.log(len(poses))) if log_weights is None else _normalised(log_weights)
+        b._set(poses, lw, region, resolution, info, False, None)
+        return b
 
     # -- basic -------------------------------------------------------------------------
     def __len__(self) -> int:

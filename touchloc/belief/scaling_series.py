@@ -330,9 +330,14 @@ class ScalingSeries:
         P = X[idx]
 
         model = self.posterior_model or self.model
-
-        def new(Q):
-            return finite_loglik(model.log_likelihood(Q, contacts))
+        if (isinstance(model, ProximityModel) and type(model).log_likelihood is ProximityModel.log_likelihood
+                and type(model).contact_costs is ProximityModel.contact_costs):
+            # the moves' proposals are this estimator's own rigid poses: no re-validation
+            def new(Q):
+                return finite_loglik(-0.5 * model._contact_costs(Q, contacts).sum(axis=1))
+        else:
+            def new(Q):
+                return finite_loglik(model.log_likelihood(Q, contacts))
         l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
         P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
                                               moves=self.final_moves, max_stages=self.final_stages, rng=self.rng)
@@ -394,7 +399,7 @@ class ScalingSeries:
             lw = ll.copy()
             if last and log_prior is not None:
                 lw = lw + log_prior(X)
-            belief = ParticleBelief(X, lw, region=region, resolution=new_delta)
+            belief = ParticleBelief._trusted(X, lw, region=region, resolution=float(new_delta))
             n_part = len(X)
             if last:
                 # the final cover's volume (metric units): each particle stands for volume / N,

@@ -1,0 +1,79 @@
+"""This checkout's localisation time against another commit's, trial by trial.
+
+    python benchmarks/ab_speed.py REV [--trials N] [--contacts 10,30] [--meshes mug,milk,...]
+
+The speed benchmark's trials (``bench_speed.py``: the README quick-start path, 2 mm / 5 deg
+contacts, pose uniform in a 400 mm cube) on two worker processes, one importing touchloc
+from this checkout and one from ``git archive REV``. The two answer each trial in turn, in
+alternating order, so that both see the same load on a shared machine; the ratio reported
+is the median over trials of the per-trial ratio (REV / this checkout). Prints a Markdown
+table; nothing is written to docs/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import baseline_tree, table  # noqa: E402
+from bench_speed import ROOT, _Worker  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rev", help="the commit to compare with (e.g. HEAD for the working tree's changes)")
+    ap.add_argument("--trials", type=int, default=6)
+    ap.add_argument("--contacts", default="10,30")
+    ap.add_argument("--meshes", default="mug,milk,can,cereal")
+    ap.add_argument("--threads", type=int, default=0, help="numba threads per worker (0: numba's default)")
+    a = ap.parse_args(argv)
+    ks = [int(k) for k in a.contacts.split(",")]
+    meshes = a.meshes.split(",")
+    threads = a.threads or None
+    rows = []
+    load = [os.getloadavg()[0]]
+    with tempfile.TemporaryDirectory() as tmpd:
+        base_path = baseline_tree(a.rev, Path(tmpd) / "base")
+        if base_path is None:
+            print(f"no commit {a.rev!r} in this repository", file=sys.stderr)
+            return 2
+        cur, base = _Worker(ROOT, threads), _Worker(base_path, threads)
+        try:
+            for mesh in meshes:
+                for k in ks:
+                    tb, tc, ok_b, ok_c = [], [], [], []
+                    for s in range(a.trials):
+                        seed = 5000 + 100 * k + s
+                        first, second = (cur, base) if s % 2 == 0 else (base, cur)
+                        r1 = first.ask(mesh=mesh, k=k, seed=seed)
+                        r2 = second.ask(mesh=mesh, k=k, seed=seed)
+                        rc, rb = (r1, r2) if first is cur else (r2, r1)
+                        tc.append(rc["time"])
+                        tb.append(rb["time"])
+                        ok_c.append(rc["adds"] < 0.005)
+                        ok_b.append(rb["adds"] < 0.005)
+                    tb, tc = np.array(tb), np.array(tc)
+                    rows.append([mesh, k, a.trials, f"{np.median(tb):.3f}", f"{np.median(tc):.3f}",
+                                 f"{np.median(tb / tc):.2f}x", f"{sum(ok_b)}/{a.trials}", f"{sum(ok_c)}/{a.trials}"])
+                    print(" | ".join(str(x) for x in rows[-1]), file=sys.stderr, flush=True)
+        finally:
+            cur.close()
+            base.close()
+    load.append(os.getloadavg()[0])
+    print(f"Load average (1 min) before / after: {load[0]:.1f} / {load[1]:.1f} on {os.cpu_count()} cores; "
+          f"threads: {threads or 'numba default'}.\n")
+    print(table(["mesh", "contacts", "trials", f"{a.rev} median s", "this checkout median s",
+                 "speed-up (median of per-trial ratios)", f"{a.rev} ADD-S < 5 mm", "this checkout ADD-S < 5 mm"],
+                rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
