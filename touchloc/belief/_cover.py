@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from .._cache import numba_cache_enabled
 
-__all__ = ["ball_counts", "accept_draws"]
+__all__ = ["ball_counts", "accept_draws", "draw_full"]
 
 #: Above this many neighbour pairs (per candidate) the pair lists cost more (in time and
 #: memory) than counting otherwise: a capped scan where balls overlap heavily, else a
@@ -114,6 +114,56 @@ def _count_capped_serial(A, X, r2, cap):
     for q in range(X.shape[0]):
         out[q] = _capped_one(A, X, q, r2, cap)
     return out
+
+
+@nb.njit(**_NB)
+def draw_full(g, u, qc, tc, pick, free, r, rho):
+    """Candidates uniform in the metric balls of radius ``r`` around centres (full rotations).
+
+    ``g`` (n, d) standard normals and ``u`` (n,) uniforms (drawn by the caller, so that the
+    random stream is numpy's), ``qc`` (C, 4) the centres' unit quaternions (x, y, z, w),
+    ``tc`` (C, 3) their translations, ``pick`` (n,) the centre of each draw, ``free`` (k,)
+    the free translation axes (d = k + 3), ``rho`` the metric's length scale. Draw i is
+    ``v = g_i / |g_i| * r * u_i^(1/d)``, its translation ``tc[pick] + v[:k]`` on the free
+    axes, its rotation ``exp(v[k:] / rho) qc[pick]`` with the sign that makes w >= 0
+    (as :meth:`PoseRegion.perturb` with ``ball=True``, in quaternions).
+
+    Returns ``t`` (n, 3), ``q`` (n, 4) and the embedding (n, k + 4): free translation,
+    then ``2 rho q`` (:meth:`PoseRegion.embed`).
+    """
+    n, d = g.shape
+    k = free.shape[0]
+    t = np.empty((n, 3))
+    q = np.empty((n, 4))
+    emb = np.empty((n, k + 4))
+    for i in range(n):
+        nrm = 0.0
+        for j in range(d):
+            nrm += g[i, j] * g[i, j]
+        scale = r * u[i] ** (1.0 / d) / np.sqrt(nrm)
+        c = pick[i]
+        for j in range(3):
+            t[i, j] = tc[c, j]
+        for j in range(k):
+            t[i, free[j]] += g[i, j] * scale
+            emb[i, j] = t[i, free[j]]
+        wx = g[i, k] * scale / rho
+        wy = g[i, k + 1] * scale / rho
+        wz = g[i, k + 2] * scale / rho
+        a = np.sqrt(wx * wx + wy * wy + wz * wz)
+        sa = np.sin(0.5 * a) / a if a > 1e-6 else 0.5 - a * a / 48.0
+        px, py, pz, pw = wx * sa, wy * sa, wz * sa, np.cos(0.5 * a)
+        qx, qy, qz, qw = qc[c, 0], qc[c, 1], qc[c, 2], qc[c, 3]
+        # Hamilton product p q: the centre's rotation, then the perturbation
+        x = pw * qx + qw * px + (py * qz - pz * qy)
+        y = pw * qy + qw * py + (pz * qx - px * qz)
+        z = pw * qz + qw * pz + (px * qy - py * qx)
+        w = pw * qw - (px * qx + py * qy + pz * qz)
+        if w < 0.0:
+            x, y, z, w = -x, -y, -z, -w
+        q[i, 0], q[i, 1], q[i, 2], q[i, 3] = x, y, z, w
+        emb[i, k], emb[i, k + 1], emb[i, k + 2], emb[i, k + 3] = 2 * rho * x, 2 * rho * y, 2 * rho * z, 2 * rho * w
+    return t, q, emb
 
 
 #: Below this many candidates the counts run on one thread (the thread pool's start-up

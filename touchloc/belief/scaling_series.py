@@ -18,7 +18,7 @@ from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
-from ._cover import accept_draws
+from ._cover import accept_draws, draw_full
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -517,23 +517,6 @@ class ScalingSeries:
         return self.belief
 
 
-def _quat_from_rotvec(w):
-    """Unit quaternions (x, y, z, w) of rotation vectors (N, 3)."""
-    a = np.linalg.norm(w, axis=1)
-    # sin(a/2)/a, with its limit 1/2 - a^2/48 near zero
-    s = np.where(a > 1e-6, np.sin(0.5 * a) / np.where(a > 1e-6, a, 1.0), 0.5 - a * a / 48.0)
-    return np.concatenate([w * s[:, None], np.cos(0.5 * a)[:, None]], axis=1)
-
-
-def _quat_mul(p, q):
-    """Hamilton products p q of (N, 4) quaternions (x, y, z, w): the rotation q, then p."""
-    pv, pw = p[:, :3], p[:, 3:]
-    qv, qw = q[:, :3], q[:, 3:]
-    v = pw * qv + qw * pv + np.cross(pv, qv)
-    w = pw * qw - np.sum(pv * qv, axis=1, keepdims=True)
-    return np.concatenate([v, w], axis=1)
-
-
 class _Draws:
     """Candidates of the cover: uniform in the metric ball of radius ``r`` around
     ``centers[pick]`` (as :meth:`PoseRegion.perturb`), with their embedding
@@ -553,23 +536,21 @@ class _Draws:
             return
         n, d = len(pick), region.dim
         free = region.free_translation
-        k = int(free.sum())
         g = rng.normal(size=(n, d))
-        g /= np.linalg.norm(g, axis=1, keepdims=True)
-        v = g * (r * rng.random(n) ** (1.0 / d))[:, None]
+        u = rng.random(n)
         rho = region._rho()
         qc = Rotation.from_matrix(centers[:, :3, :3]).as_quat()
         qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
-        t = centers[pick, :3, 3].copy()
-        t[:, free] += v[:, :k]
-        q = _quat_mul(_quat_from_rotvec(v[:, k:] / rho), qc[pick])
-        q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+        # one compiled pass: the draws, their quaternions and their embedding
+        t, q, emb = draw_full(g, u, qc, np.ascontiguousarray(centers[:, :3, 3]), np.asarray(pick, dtype=np.int64),
+                              np.flatnonzero(free).astype(np.int64), float(r), float(rho))
         if sym is not None:
             q, t = sym._canonical(q, t)
+            emb = np.concatenate([t[:, free], 2.0 * rho * q], axis=1)
         self._t, self._q = t, q
         self.inside = np.all(np.abs(t - region.center) <= region.half_extent + 1e-9, axis=1)
         self.centres_emb = np.concatenate([centers[:, :3, 3][:, free], 2.0 * rho * qc], axis=1)
-        self.emb = np.concatenate([t[:, free], 2.0 * rho * q], axis=1)
+        self.emb = emb
 
     def poses(self, idx) -> np.ndarray:
         """(len(idx), 4, 4) poses of the chosen candidates."""
