@@ -143,7 +143,7 @@ def _warm(obj, full):
 
 
 def _warm_cover():
-    """The ball-count kernels of the Scaling Series cover, with the argument types it passes."""
+    """The Scaling Series cover's kernels (ball counts, draws), with the argument types it passes."""
     from .belief import _cover as C
 
     off, nbr = C._csr(np.array([[0, 1]], dtype=np.int64), 2)
@@ -154,6 +154,12 @@ def _warm_cover():
         kernel(A, off, nbr, X, anchor, 1.0)
     for kernel in (C._count_capped, C._count_capped_serial):
         kernel(A, X, 1.0, 16)
+    # the draws of full rotations: a region with three free axes and one with fewer
+    g, u = np.zeros((1, 6)), np.full(1, 0.5)
+    g[0, 0] = 1.0
+    q, t, pick = np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
+    for free in (np.arange(3, dtype=np.int64), np.arange(2, dtype=np.int64)):
+        C.draw_full(g[:, :len(free) + 3], u, q, t, pick, free, 0.01, 0.05)
 
 
 class SetUp:
