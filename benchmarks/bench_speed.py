@@ -76,7 +76,7 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         'at 10 and 30 contacts (section "Scaling Series\' particle cap"); it accounts for '
         'most of the step from the earlier rows of this table to these.'
         ' Against the tree just before this step (commit 666723a, `TOUCHLOC_BENCH_BASELINE=666723a python benchmarks/bench_speed.py --quick`, same workers, load average 11-22 on 2 cores): mug 1.4x at 5 and at 10 contacts, 1.1x at 30, can 1.1x at 10 contacts, `identify` 1.6x.'
-        '\n\nThe latest step: calls below 4096 pose-contact pairs run a one-thread kernel (the '
+        '\n\nA step before: calls below 4096 pose-contact pairs run a one-thread kernel (the '
         'thread pool waits for a time slice on a loaded machine: with one busy process on the '
         'other core, 1000 pairs took 8 ms on two threads against 0.9 ms on one). That kernel, '
         'compiled without numba\'s parallel pipeline, ran the same loop 2.1x slower than the '
@@ -111,7 +111,7 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         'thread, lemon 1.1 to 0.8 M pairs/s, mug 3.5 to 2.7). On the lemon about 9 faces per '
         'query pass the bound and need their closest point, and walking the bins costs more '
         'than the bounds it saves.'
-        '\n\nThe last step: a near-spherical object (the ball row) has no preferred orientation,'
+        '\n\nThen: a near-spherical object (the ball row) has no preferred orientation,'
         ' and the cover filled the particle cap with turned copies of the right answer at every '
         'scale (160 thousand likelihood evaluations, 13.5 s at 10 contacts at the baseline). '
         'Scaling Series now finds the sphere\'s symmetry by testing the mesh and keeps one pose '
@@ -119,7 +119,7 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         'evaluations. The same search for a body of revolution (can, lemon) saved a third to a '
         'half of the evaluations but was no faster (its representatives crowd one slice of the '
         'pose space, and the cover\'s counting there rose): it is off by default for them.'
-        '\n\nThe step after that, from a profile of milk and mug at 30 contacts (one thread; the posterior stage took 43 % of the milk\'s time, a third of it in the tempering\'s bisection on its power, 30 evaluations of the effective sample size per stage through scipy\'s logsumexp, and a tenth in re-validating the estimator\'s own poses): the ESS is now plain numpy, the moves are scored through the model\'s unvalidated cost pass, and the per-scale beliefs skip re-checking their rotations (the weights are still checked). Then, from a profile of the mug at 5 and 10 contacts (the cover half of the time at 5, a quarter of it in building the draws): the draws of full rotations (direction, radius, exp map, product with the centre, sign, embedding) are one compiled pass over numpy\'s random numbers. Against the commit before each (`python benchmarks/ab_speed.py REV`, 6 trials per cell, alternating): 1.09 / 1.18 / 1.12 / 1.13x at 30 contacts (mug, milk, can, cereal) and 0.99-1.07x at 10 for the first; 1.08 / 1.15 / 1.09x at 5 contacts and 1.11 / 1.13 / 1.07x at 10 (mug, milk, lemon) for the second. What is left at 5 contacts (mug, one thread): the cover 51 % (the KD-tree pair query of its neighbour lists 17 %, the draws 15 %, the counts 7 %), the likelihood 44 %.')
+        '\n\nThe latest step, from a profile of milk and mug at 30 contacts (one thread; the posterior stage took 43 % of the milk\'s time, a third of it in the tempering\'s bisection on its power, 30 evaluations of the effective sample size per stage through scipy\'s logsumexp, and a tenth in re-validating the estimator\'s own poses): the ESS is now plain numpy, the moves are scored through the model\'s unvalidated cost pass, and the per-scale beliefs skip re-checking their rotations (the weights are still checked). Then, from a profile of the mug at 5 and 10 contacts (the cover half of the time at 5, a quarter of it in building the draws): the draws of full rotations (direction, radius, exp map, product with the centre, sign, embedding) are one compiled pass over numpy\'s random numbers. Against the commit before each (`python benchmarks/ab_speed.py REV`, 6 trials per cell, alternating): 1.09 / 1.18 / 1.12 / 1.13x at 30 contacts (mug, milk, can, cereal) and 0.99-1.07x at 10 for the first; 1.08 / 1.15 / 1.09x at 5 contacts and 1.11 / 1.13 / 1.07x at 10 (mug, milk, lemon) for the second. What is left at 5 contacts (mug, one thread): the cover 51 % (the KD-tree pair query of its neighbour lists 17 %, the draws 15 %, the counts 7 %), the likelihood 44 %.')
 HELD_OUT = ["can", "lemon", "bread", "cereal"]
 #: a near-spherical mesh of the size of a football (issue's "any mesh up to 10k faces, near-spherical
 #: ones included"): a 110 mm sphere of 5120 faces with bumps of +-0.7 mm, so that no rotation is an
