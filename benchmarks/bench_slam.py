@@ -347,6 +347,7 @@ def run(quick: bool = False) -> str:
                      "previous: F@5mm"]
     out.append(table(head, rows))
     out.append(_timing(quick))
+    out.append(_blas_threads(quick))
     out.insert(0, f"Trials: {len(res)} runs of this tree on {_workers()} single-threaded worker processes"
                + (f", {len(base)} of the previous estimator in a child process" if base is not None else "")
                + f"; {t_trials:.0f} s wall.\n")
@@ -440,6 +441,22 @@ def _timing(quick):
             "row.\n\n"
             + table(["fingers", "contacts in the map", "updates", "median (ms)", "p95 (ms)", "max (ms)", "mean (ms)",
                      f"{TIMING_BASELINE} median / mean (ms)", "speed-up", "smoother runs in the whole run"], rows))
+
+
+def _blas_threads(quick):
+    """The same run's updates in a user's default process, BLAS limited to one thread inside
+    the mapping package (its default) against no limit (``study_blas_threads.py``)."""
+    from study_blas_threads import measure
+
+    return ("\n### BLAS threads\n\nWall-clock time per update in child processes with the process's BLAS "
+            "settings left alone (no `OMP_NUM_THREADS` or `OPENBLAS_NUM_THREADS`), as a user's script runs: the "
+            "mapping package's own limit (BLAS on one thread inside its calls, the default) against no limit "
+            "(`TOUCHLOC_BLAS_THREADS=0`, OpenBLAS on every core). The same worlds and seeds; the SLAM rows are the "
+            "run of \"Update time as the map grows\", which measures CPU time with single-threaded BLAS and so "
+            "does not show this (`python benchmarks/study_blas_threads.py` alone).\n\n"
+            + measure(100 if quick else 200)
+            + "\n\nThe GPIS's work is many products and triangular solves of n rows by a dozen new ones, where "
+            "OpenBLAS's second thread mostly waits for the first (and, on a shared machine, for a time slice).")
 
 
 if __name__ == "__main__":

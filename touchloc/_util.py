@@ -56,3 +56,57 @@ def _log_progress(iterable, total, desc, interval):
             print(f"{desc or 'progress'}: {i}{'' if total is None else f'/{total}'} ({now - t0:.0f} s)",
                   file=sys.stderr, flush=True)
         yield item
+
+
+# -- BLAS threads ------------------------------------------------------------------------
+#: environment variable: the BLAS threads the mapping package's work may use ("0": no limit)
+BLAS_THREADS_ENV = "TOUCHLOC_BLAS_THREADS"
+_BLAS = {"controller": None}
+_BLAS_DEPTH = __import__("threading").local()
+
+
+def _blas_limit():
+    """The BLAS thread limit for the mapping package's work: 1 unless ``TOUCHLOC_BLAS_THREADS``
+    says otherwise (a positive integer; 0 or an empty value: leave BLAS as it is)."""
+    import os
+
+    raw = os.environ.get(BLAS_THREADS_ENV, "1").strip()
+    try:
+        n = int(raw) if raw else 0
+    except ValueError:
+        raise ValidationError(f"{BLAS_THREADS_ENV} must be a whole number of threads (0: no limit), "
+                              f"got {raw!r}") from None
+    if n < 0:
+        raise ValidationError(f"{BLAS_THREADS_ENV} must be >= 0 (0: no limit), got {n}")
+    return n
+
+
+def blas_threads(fn):
+    """Decorator: run ``fn`` with BLAS limited to :func:`_blas_limit` threads (threadpoolctl).
+
+    The shape map's work is many mid-sized products and triangular solves (n observations
+    by a dozen new ones) and kernel matrices of a few thousand rows, where a second BLAS
+    thread mostly waits: measured on 2 cores with OpenBLAS on both, a tactile SLAM update
+    took 2-5x longer than on one thread and a static map's update 2-10x (docs/benchmarks.md,
+    "BLAS threads"). The limit holds only inside the call (the process's own setting is
+    restored after), and nested calls keep it.
+    """
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        n = _blas_limit()
+        if n == 0 or getattr(_BLAS_DEPTH, "inside", False):
+            return fn(*args, **kwargs)
+        if _BLAS["controller"] is None:
+            from threadpoolctl import ThreadpoolController
+
+            _BLAS["controller"] = ThreadpoolController()
+        _BLAS_DEPTH.inside = True
+        try:
+            with _BLAS["controller"].limit(limits=n, user_api="blas"):
+                return fn(*args, **kwargs)
+        finally:
+            _BLAS_DEPTH.inside = False
+
+    return wrapper

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtr
 
-from .._util import as_rng, progress
+from .._util import as_rng, blas_threads, progress
 from .._validate import as_bool, as_callable, as_nonnegative_float
 from ..errors import ValidationError
 from ..planners import GuardedTouch, HandTouch, TouchResult
@@ -142,6 +142,7 @@ def _as_count(n, name, hi=_MAX_TOUCHES):
     return int(n)
 
 
+@blas_threads
 def ray_information(smap: ShapeMap, touches, *, samples: int = 24, score: str = "variance") -> np.ndarray:
     """(C,) expected shape information along each touch's path (see the module notes).
 
@@ -287,6 +288,7 @@ class ExplorationRun:
         return "\n".join(lines)
 
 
+@blas_threads
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
             smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
             fingers: int = 1, candidates=None,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .._util import as_points
+from .._util import as_points, blas_threads
 from .._validate import as_bool, as_count, as_path
 from ..errors import MappingError, ValidationError
 from .gpis import GPIS, bound_site
@@ -180,6 +180,7 @@ class ShapeMap:
 
         return Contacts(self._pts, self._nrm if self._has_normals and len(self._pts) else None)
 
+    @blas_threads
     def update(self, results) -> "ShapeMap":
         """Fold in executed touches: every contact and the space every touch swept.
 
@@ -346,6 +347,7 @@ class ShapeMap:
         self._free, self._free_c, self._free_owner = self._free[keep], self._free_c[keep], self._free_owner[keep]
         self._gp.untrack(keep)
 
+    @blas_threads
     def relocate(self, transforms, *, tol: float = 0.0) -> "ShapeMap":
         """Move the data of each past update by a rigid transform, and refit.
 
@@ -434,6 +436,7 @@ class ShapeMap:
                                         np.array([r.contact is not None for r in batch]))
         return self
 
+    @blas_threads
     def refit(self) -> "ShapeMap":
         """Refactor the GPIS from its stored observations (a check on the incremental update)."""
         if self.method == "gpis":
@@ -441,6 +444,7 @@ class ShapeMap:
         return self
 
     # -- queries ---------------------------------------------------------------------
+    @blas_threads
     def signed_distance(self, points) -> np.ndarray:
         """(M,) the map's mean implicit function at world points: negative inside.
 
@@ -453,6 +457,7 @@ class ShapeMap:
         p = np.clip(self._grid.probability(P), 1e-12, 1 - 1e-12)
         return -np.log(p / (1 - p))
 
+    @blas_threads
     def surface_std(self, points) -> np.ndarray:
         """(M,) shape uncertainty at world points.
 
@@ -467,6 +472,7 @@ class ShapeMap:
         p = self._grid.probability(P)
         return np.sqrt(p * (1 - p))
 
+    @blas_threads
     def mean_std(self, points, *, calibrated: bool = True):
         """(M,) mean implicit function and (M,) its standard deviation.
 
@@ -479,6 +485,7 @@ class ShapeMap:
             return self.signed_distance(P), self.surface_std(P)
         return self._gp.mean_std(P, calibrated=calibrated)
 
+    @blas_threads
     def grid(self, resolution: int | None = None):
         """The mean implicit function sampled on a grid over the bounds.
 
@@ -500,6 +507,7 @@ class ShapeMap:
             return self.signed_distance(G).reshape(tuple(n)), self.lo.copy(), h
         return _coarse_to_fine(lambda Q: self._gp.mean(Q, dtype=np.float32), axes, h), self.lo.copy(), h
 
+    @blas_threads
     def to_mesh(self, resolution: int | None = None, *, name: str = "map"):
         """The mean surface as a :class:`~touchloc.models.MeshObject` (marching cubes).
 

@@ -59,7 +59,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, logsumexp
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import as_bool, as_float, as_pose
 from ..errors import ValidationError
 from ..models import Contacts
@@ -501,6 +501,7 @@ class TactileSLAM:
         T[:3, :3] = Rotation.from_matrix(P[:, :3, :3]).mean(weights=w).as_matrix()
         return T
 
+    @blas_threads
     def update(self, results, odometry=None) -> np.ndarray:
         """Fold in one step's touches, with an optional odometry prior on the motion.
 
@@ -606,6 +607,7 @@ class TactileSLAM:
             self._next_smooth = k + max(self.smooth_every, k // 4)
         return self.trajectory[-1].copy()
 
+    @blas_threads
     def smooth(self) -> dict:
         """Revise the poses at once (the last ``smooth_window`` of them) and move the map's
         touches with them.
