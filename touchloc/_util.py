@@ -88,8 +88,9 @@ def blas_threads(fn):
     by a dozen new ones) and kernel matrices of a few thousand rows, where a second BLAS
     thread mostly waits: measured on 2 cores with OpenBLAS on both, a tactile SLAM update
     took 2-5x longer than on one thread and a static map's update 2-10x (docs/benchmarks.md,
-    "BLAS threads"). The limit holds only inside the call (the process's own setting is
-    restored after), and nested calls keep it.
+    "BLAS threads"). The limit holds while the call runs (for the whole process: BLAS
+    calls of other Python threads meanwhile are limited too) and the process's own setting
+    is restored after; nested calls keep it.
     """
     import functools
 
