@@ -87,7 +87,7 @@ def blas_threads(fn):
     The shape map's work is many mid-sized products and triangular solves (n observations
     by a dozen new ones) and kernel matrices of a few thousand rows, where a second BLAS
     thread mostly waits: measured on 2 cores with OpenBLAS on both, a tactile SLAM update
-    took 2-5x longer than on one thread and a static map's update 2-10x (docs/benchmarks.md,
+    took 1.6-5x longer than on one thread and a static map's update 1.7-10x (docs/benchmarks.md,
     "BLAS threads"). The limit holds while the call runs (for the whole process: BLAS
     calls of other Python threads meanwhile are limited too) and the process's own setting
     is restored after; nested calls keep it.
