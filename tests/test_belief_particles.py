@@ -120,3 +120,27 @@ def test_region_rejects_bad_arguments():
         PoseRegion.box(half_extent=-1)
     with pytest.raises(ValidationError, match="rotation matrix"):
         PoseRegion.box(rotation=np.diag([1.0, 1.0, -1.0]))
+
+
+def test_tempering_ess_equals_the_log_space_formula():
+    """smc._ess (plain numpy, for the bisection on the tempering power) against
+    exp(-logsumexp(2 lw)) of normalised log-weights, with -inf weights and a huge offset."""
+    from scipy.special import logsumexp
+
+    from touchloc.belief.smc import _ess
+
+    rng = np.random.default_rng(4)
+    for lw in (rng.normal(0, 3, 500), rng.normal(0, 30, 500) + 1e4, np.r_[rng.normal(0, 1, 50), [-np.inf] * 5]):
+        n = lw - logsumexp(lw)
+        assert _ess(lw) == pytest.approx(float(np.exp(-logsumexp(2 * n))), rel=1e-10)
+    assert _ess(np.full(10, -np.inf)) == 0.0
+    assert _ess(np.zeros(7)) == pytest.approx(7.0)
+
+
+def test_trusted_belief_normalises_and_checks_its_weights():
+    P = np.repeat(np.eye(4)[None], 3, axis=0)
+    b = ParticleBelief._trusted(P, np.array([0.0, 1.0, 2.0]))
+    assert np.exp(b.log_weights).sum() == pytest.approx(1.0)
+    np.testing.assert_allclose(b.log_weights, ParticleBelief(P, [0.0, 1.0, 2.0]).log_weights)
+    with pytest.raises(BeliefDegenerateError):
+        ParticleBelief._trusted(P, np.array([0.0, np.nan, 1.0]))

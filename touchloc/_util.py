@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 from typing import Iterable
 
 import numpy as np
@@ -61,8 +62,8 @@ def _log_progress(iterable, total, desc, interval):
 # -- BLAS threads ------------------------------------------------------------------------
 #: environment variable: the BLAS threads the mapping package's work may use ("0": no limit)
 BLAS_THREADS_ENV = "TOUCHLOC_BLAS_THREADS"
-_BLAS = {"controller": None}
-_BLAS_DEPTH = __import__("threading").local()
+_BLAS_CONTROLLER = None          # threadpoolctl's controller, made on first use
+_BLAS_INSIDE = threading.local()  # .on: this thread is inside a limited call
 
 
 def _blas_limit():
@@ -96,18 +97,19 @@ def blas_threads(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        global _BLAS_CONTROLLER
         n = _blas_limit()
-        if n == 0 or getattr(_BLAS_DEPTH, "inside", False):
+        if n == 0 or getattr(_BLAS_INSIDE, "on", False):
             return fn(*args, **kwargs)
-        if _BLAS["controller"] is None:
+        if _BLAS_CONTROLLER is None:
             from threadpoolctl import ThreadpoolController
 
-            _BLAS["controller"] = ThreadpoolController()
-        _BLAS_DEPTH.inside = True
+            _BLAS_CONTROLLER = ThreadpoolController()
+        _BLAS_INSIDE.on = True
         try:
-            with _BLAS["controller"].limit(limits=n, user_api="blas"):
+            with _BLAS_CONTROLLER.limit(limits=n, user_api="blas"):
                 return fn(*args, **kwargs)
         finally:
-            _BLAS_DEPTH.inside = False
+            _BLAS_INSIDE.on = False
 
     return wrapper

@@ -154,12 +154,11 @@ def _warm_cover():
         kernel(A, off, nbr, X, anchor, 1.0)
     for kernel in (C._count_capped, C._count_capped_serial):
         kernel(A, X, 1.0, 16)
-    # the draws of full rotations: a region with three free axes and one with fewer
-    g, u = np.zeros((1, 6)), np.full(1, 0.5)
+    # the draws of full rotations (one signature, whatever the number of free axes)
+    g = np.zeros((1, 6))
     g[0, 0] = 1.0
-    q, t, pick = np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), np.zeros(1, dtype=np.int64)
-    for free in (np.arange(3, dtype=np.int64), np.arange(2, dtype=np.int64)):
-        C.draw_full(g[:, :len(free) + 3], u, q, t, pick, free, 0.01, 0.05)
+    C.draw_full(g, np.full(1, 0.5), np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), np.zeros(1, dtype=np.int64),
+                np.arange(3, dtype=np.int64), 0.01, 0.05)
 
 
 class SetUp:
