@@ -172,6 +172,31 @@ def test_interrupt_inside_numba_is_held_until_numba_returns():
     assert signal.getsignal(signal.SIGINT) is not intr
 
 
+def test_interrupt_inside_numpys_ctypes_check_is_not_lost():
+    # numpy's C code calls npy_ctypes_check while it builds a dtype and clears whatever it
+    # raises: a KeyboardInterrupt raised there would vanish and the command would go on
+    def trace(frame, event, arg):
+        if event == "call" and frame.f_code.co_name == "npy_ctypes_check":
+            signal.raise_signal(signal.SIGINT)  # Ctrl-C while numpy is inside the check
+        return None
+
+    intr = cli._Interrupts()
+    assert intr.install()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            sys.settrace(trace)
+            try:
+                dtype = np.dtype((np.void, 8))
+            finally:
+                sys.settrace(None)
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:  # delivered here, once numpy has returned
+                time.sleep(0.01)
+    finally:
+        intr.uninstall()
+    assert dtype.itemsize == 8
+
+
 def test_unsafe_code_is_recognised_on_the_stack():
     import threading
 

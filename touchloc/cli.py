@@ -180,14 +180,19 @@ def _caused_by_interrupt(exc) -> bool:
 #    it exits (SIGSEGV), or it is raised inside a ctypes callback, which swallows it (the
 #    command goes on and exits 0);
 #  * a thread being joined (scipy's cKDTree queries with workers=-1 run in threads): the
-#    interrupted join leaves them running on memory that the exiting interpreter frees.
+#    interrupted join leaves them running on memory that the exiting interpreter frees;
+#  * numpy's ``npy_ctypes_check``, which numpy's C code calls while it builds a dtype and
+#    whose exceptions it clears: an interruption there is lost (the command goes on and
+#    exits 0).
 # And once the command's work is over, a Ctrl-C must not kill the process by the signal:
 # Python puts the default action back while it finalises, so a Ctrl-C then ends the
 # process with no message and status -2. The program ignores SIGINT from its last
 # atexit callback on.
 
 _HOLD_PACKAGES = frozenset({"numba", "llvmlite"})
-_HOLD_CALLS = frozenset({("threading", "join"), ("threading", "_wait_for_tstate_lock")})
+_HOLD_CALLS = frozenset({("threading", "join"), ("threading", "_wait_for_tstate_lock"),
+                         ("numpy._core._internal", "npy_ctypes_check"),
+                         ("numpy.core._internal", "npy_ctypes_check")})
 #: seconds an interruption may wait before the command says why it has not stopped yet
 _HOLD_NOTE_AFTER = 3.0
 
@@ -232,6 +237,7 @@ class _Interrupts:
         self.redelivering = False
         self._previous = None
         self._main = threading.main_thread().ident
+        self._lock = threading.RLock()
 
     def install(self) -> bool:
         if threading.current_thread() is not threading.main_thread():
@@ -248,37 +254,46 @@ class _Interrupts:
         if self.finished is not None:
             _flush_std()
             os._exit(self.finished)
-        if self.held and not self.redelivering:  # a second Ctrl-C while the first waits: stop now
-            print(f"{self.label}: interrupted", file=sys.stderr)
-            _flush_std()
-            os._exit(EXIT_INTERRUPTED)
-        self.redelivering = False
-        if _in_unsafe_code(frame):
-            if not self.held:
-                self.held = True
-                threading.Thread(target=self._watch, name="touchloc-interrupt", daemon=True).start()
-            return
-        self.held = False
+        # the watcher reads and sets the same state; the lock keeps it from delivering again
+        # between this call's decision and its state change (re-entrant: a signal can arrive
+        # while the handler runs)
+        with self._lock:
+            if self.held and not self.redelivering:  # a second Ctrl-C while the first waits: stop now
+                print(f"{self.label}: interrupted", file=sys.stderr)
+                _flush_std()
+                os._exit(EXIT_INTERRUPTED)
+            self.redelivering = False
+            if _in_unsafe_code(frame):
+                if not self.held:
+                    self.held = True
+                    threading.Thread(target=self._watch, name="touchloc-interrupt", daemon=True).start()
+                return
+            self.held = False
         raise KeyboardInterrupt
 
     def _watch(self):
         t0 = time.monotonic()
         noted = False
-        while self.held:
+        while True:
             time.sleep(0.02)
-            if self.redelivering:
-                continue  # the main thread has not run the handler yet (busy in compiled code)
-            frame = sys._current_frames().get(self._main)
-            if frame is None:
-                return
-            if not _in_unsafe_code(frame):
-                self.redelivering = True
-                _thread.interrupt_main(signal.SIGINT)
-            elif not noted and time.monotonic() - t0 > _HOLD_NOTE_AFTER:
+            with self._lock:
+                if not self.held:
+                    return
+                if self.redelivering:
+                    continue  # the main thread has not run the handler yet (busy in compiled code)
+                frame = sys._current_frames().get(self._main)
+                if frame is None:
+                    return
+                unsafe = _in_unsafe_code(frame)
+                del frame
+                if not unsafe:
+                    self.redelivering = True
+                    _thread.interrupt_main(signal.SIGINT)
+                    continue
+            if not noted and time.monotonic() - t0 > _HOLD_NOTE_AFTER:
                 noted = True
                 print(f"{self.label}: stopping when the kernels are compiled or loaded; press Ctrl-C again "
                       "to stop at once", file=sys.stderr, flush=True)
-            del frame
 
 
 def _ignore_interrupts():
