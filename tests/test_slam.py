@@ -83,6 +83,26 @@ def test_odometry_scale_learned_from_the_map_and_left_alone_without_bias():
     assert fixed.odometry_scale == 1.0 and not fixed.learn_odometry_scale
 
 
+def test_a_calibrated_odometry_scale_is_applied_and_can_be_held(milk):
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_euler("z", 20.0, degrees=True).as_matrix()
+    yaw = {}
+    for scale in (1.0, 0.95):
+        slam = TactileSLAM(_box(milk, 0.03), odometry_noise=(0.0005, np.deg2rad(1.0)), odometry_scale=scale, rng=0)
+        slam.update([], odometry=turn)   # no touches: the pose is the odometry's, scaled
+        yaw[scale] = Rotation.from_matrix(slam.pose[:3, :3]).as_euler("xyz", degrees=True)[2]
+    # 300 particles spread by 1 deg: their mean is within about 0.1 deg of the scaled turn
+    assert abs(yaw[1.0] - 20.0) < 0.3 and abs(yaw[0.95] - 19.0) < 0.3
+    # held (prior sd 0) while learning is on: the scale never moves, though the map would move it
+    world = MovingWorld(milk, rng=1, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05)
+    held = TactileSLAM(_box(milk, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
+                       learn_odometry_scale=True, odometry_scale=0.97, odometry_scale_sd=0.0,
+                       sigma_pos=0.001, sigma_nor=0.087, rng=1)
+    explore(world, _box(milk, 0.06), 30, slam=held, fingers=3, rng=1)
+    assert held.map.n_contacts > 30 and held.odometry_scale == 0.97
+    assert "odometry_scale" not in held.info
+
+
 def test_slam_bad_input(milk):
     with pytest.raises(ValidationError):
         TactileSLAM(((0, 0, 0), (1, 1, np.nan)))
@@ -92,6 +112,12 @@ def test_slam_bad_input(milk):
         TactileSLAM(_box(milk, 0.02), motion=(-1.0, 0.0))
     with pytest.raises(ValidationError):
         TactileSLAM(_box(milk, 0.02), learn_odometry_scale="yes")
+    for bad in (0.5, 2.0, np.nan, True, "1"):
+        with pytest.raises(ValidationError, match="odometry_scale"):
+            TactileSLAM(_box(milk, 0.02), odometry_scale=bad)
+    for bad in (-0.01, 0.6, np.inf, None):
+        with pytest.raises(ValidationError, match="odometry_scale_sd"):
+            TactileSLAM(_box(milk, 0.02), odometry_scale_sd=bad)
     with pytest.raises(ValidationError):
         TactileSLAM(_box(milk, 0.02)).pose_covariance(predict="yes")
     slam = TactileSLAM(_box(milk, 0.02))
