@@ -499,6 +499,20 @@ def test_map_command_with_a_moving_object(tmp_path):
     assert png.exists() and (tmp_path / "s_trajectory.png").exists()
 
 
+def test_map_command_in_hand_takes_a_calibrated_or_learned_odometry_scale(capsys):
+    from touchloc.cli import main
+
+    for scale in ("0.952", "learn"):
+        assert main(["map", "--mesh", "milk", "--touches", "4", "--moving", "inhand", "--fingers", "3",
+                     "--odometry-scale", scale]) == 0
+    capsys.readouterr()
+    for argv, why in ((["--moving", "inhand", "--odometry-scale", "fast"], "a number or 'learn'"),
+                      (["--moving", "inhand", "--odometry-scale", "2"], "odometry_scale must be <="),
+                      (["--moving", "push", "--odometry-scale", "0.95"], "needs --moving inhand")):
+        assert main(["map", "--mesh", "milk", "--touches", "2", *argv]) == 1
+        assert why in capsys.readouterr().err
+
+
 def test_explore_picks_from_a_given_candidate_pool(sphere):
     world = SimulatedWorld(sphere, np.eye(4), rng=0)
     seen = []
