@@ -12,9 +12,10 @@ three-finger actions, 1 mm / 5 deg contacts), run three ways on each seed:
 
 Reports the growth of the orientation error from the first turn to the fourth (the
 median error within each turn of 24 actions; the benchmark's measure), how many runs stay
-within 5 and 10 degrees, and F@5mm of the final map. Two worker processes; takes about
-seven minutes per setting for twenty seeds on two cores. Prints a Markdown table; nothing
-is written to docs/ (docs/slam.md, "What a known scale is worth", quotes it).
+within 5 and 10 degrees, and F@5mm of the final map. Two worker processes; about eight
+minutes for the three settings and twenty seeds on two cores. Prints a Markdown table; nothing
+is written to docs/ (docs/benchmarks.md, "In-hand mug", and docs/slam.md, "What a known scale
+is worth", quote it).
 """
 
 from __future__ import annotations
