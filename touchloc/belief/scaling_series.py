@@ -282,8 +282,7 @@ class ScalingSeries:
         """
         model = self.model
         K, N = len(contacts), len(X)
-        if (not isinstance(model, ProximityModel) or type(model).log_likelihood is not ProximityModel.log_likelihood
-                or type(model).contact_costs is not ProximityModel.contact_costs):
+        if not _plain_proximity(model):
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
         method = model.method
@@ -330,8 +329,7 @@ class ScalingSeries:
         P = X[idx]
 
         model = self.posterior_model or self.model
-        if (isinstance(model, ProximityModel) and type(model).log_likelihood is ProximityModel.log_likelihood
-                and type(model).contact_costs is ProximityModel.contact_costs):
+        if _plain_proximity(model):
             # the moves' proposals are this estimator's own rigid poses: no re-validation
             def new(Q):
                 return finite_loglik(-0.5 * model._contact_costs(Q, contacts).sum(axis=1))
@@ -515,6 +513,13 @@ class ScalingSeries:
         self.belief = step.belief
         self._pending_predict = False
         return self.belief
+
+
+def _plain_proximity(model) -> bool:
+    """A :class:`ProximityModel` whose likelihood is the class's own (not overridden): its
+    costs can then be evaluated through the unvalidated, budgeted kernel pass."""
+    return (isinstance(model, ProximityModel) and type(model).log_likelihood is ProximityModel.log_likelihood
+            and type(model).contact_costs is ProximityModel.contact_costs)
 
 
 class _Draws:
