@@ -55,6 +55,55 @@ def test_incremental_update_equals_refit(sphere):
     assert np.allclose(m1, m2, atol=1e-9) and np.allclose(s1, s2, atol=1e-9)
 
 
+def test_deferred_columns_and_inverse_match_a_refactorisation():
+    """V = L^-1 K(X, Q) and diag(K^-1) are extended only when read; whatever the order of
+    additions, reads, newly tracked points and a relocation, they equal a refactorisation."""
+    from touchloc.mapping.gpis import GPIS
+
+    rng = np.random.default_rng(3)
+    prior = lambda P: (np.linalg.norm(P, axis=1) - 0.03, P / np.linalg.norm(P, axis=1)[:, None])  # noqa: E731
+
+    def rows(k):
+        P = rng.normal(size=(k, 3))
+        P *= 0.03 / np.linalg.norm(P, axis=1)[:, None]
+        X = np.concatenate([P, np.repeat(P, 3, 0)])
+        kind = np.concatenate([np.full(k, -1), np.tile(np.arange(3), k)])
+        y = np.concatenate([np.zeros(k), (P / 0.03).ravel()])
+        return X, kind, y, np.full(4 * k, 1e-6)
+
+    gp = GPIS(0.02, 0.01, prior)
+    gp.add(*rows(5))
+    gp.track(rng.uniform(-0.05, 0.05, (40, 3)))
+    gp.add(*rows(4))
+    gp.add(*rows(3))                      # two additions pending for V and L^-1
+    mean_pending = gp.tracked_mean()      # brings V up to date, not L^-1
+    assert gp._nv == gp.n and gp._nl < gp.n
+    assert np.allclose(mean_pending, gp.mean(gp.Q), atol=1e-12)
+    gp.add(*rows(6))
+    gp.track(rng.uniform(-0.05, 0.05, (30, 3)))   # new columns over every row
+    gp.untrack(np.arange(70) % 3 != 0)
+    gp.add(*rows(2))
+    L, dKi, V, sd = gp.L.copy(), gp._dKi.copy(), gp._V.copy(), gp.tracked_std()
+    mu = gp.tracked_mean()
+    assert np.allclose(mu, gp.mean(gp.Q), atol=1e-12)
+    ref = GPIS(0.02, 0.01, prior)
+    ref.add(gp.X, gp.kind, gp.y, gp.noise)
+    ref.track(gp.Q)
+    assert np.allclose(L, ref.L, atol=1e-10) and np.allclose(dKi, ref._dKi, rtol=1e-8)
+    assert np.allclose(V, ref._V, atol=1e-10) and np.allclose(sd, ref.tracked_std(), rtol=1e-8)
+    # a relocation of the last rows, with additions pending before it
+    gp.add(*rows(3))
+    n = gp.n
+    X = gp.X.copy()
+    X[n - 20:] += 0.001
+    gp.relocate(X, gp.y, gp.Q, start=n - 20)
+    assert gp._nv == gp._nl == gp.n == n
+    ref = GPIS(0.02, 0.01, prior)
+    ref.add(gp.X, gp.kind, gp.y, gp.noise)
+    ref.track(gp.Q)
+    assert np.allclose(gp._dKi, ref._dKi, rtol=1e-8) and np.allclose(gp._V, ref._V, atol=1e-10)
+
+
 def _batches_and_map(obj, free_space=True, k=4):
     res = _touches(obj, 3 * k, 0)
     batches = [res[i:i + 3] for i in range(0, 3 * k, 3)]

@@ -31,9 +31,15 @@ merged into the leading block once they pass 64 rows and a quarter of it, so the
 paid once per quarter's growth of the map (amortised O(n) per added row).
 
 A set of *tracked* query points (the free-space pool of :class:`ShapeMap`, whose mean is
-needed after every update) keeps V = L^-1 K(X, Q): each added block extends V by k rows
-in O(n k M), so their mean costs one matrix-vector product, m(Q) + V^T L^-1 r, instead of
-a new kernel matrix of M x n exponentials.
+needed after every update) keeps V = L^-1 K(X, Q), so their mean costs one matrix-vector
+product, m(Q) + V^T L^-1 r, instead of a new kernel matrix of M x n exponentials.
+
+V and the explicit inverse L^-1 (whose column norms give diag(K^-1) for the leave-one-out
+calibration) are extended lazily: an addition only borders the factor, and the rows added
+since V or L^-1 was last read are appended to it in one block when it is read next. Both
+extensions are passes over an n x M or n x n matrix, memory-bound at a few rows each, so
+one pass per read instead of one per addition is what counts: a map update adds each
+touch's rows in turn (3-5 additions) and reads them once or twice.
 """
 
 from __future__ import annotations
@@ -81,8 +87,10 @@ class GPIS:
         self._live = np.zeros(0, dtype=np.int64)   # the tracked ones, in order
         self._Vb = np.zeros((0, 0))      # buffer whose [:n, :len(_Qp)] block is L^-1 K(X, _Qp)
         self._vv = np.zeros(0)           # its column norms squared (the variance explained)
-        self._Lib = np.zeros((0, 0))     # buffer whose [:n, :n] block is L^-1
-        self._dKi = np.zeros(0)          # diag(K^-1)
+        self._Lib = np.zeros((0, 0))     # buffer whose [:_nl, :_nl] block is L^-1
+        self._dKi_buf = np.zeros(0)      # diag(K^-1) of the leading _nl rows
+        self._nv = 0                     # rows of _Vb brought up to date (see _sync_V)
+        self._nl = 0                     # rows of _Lib and _dKi_buf brought up to date
         self._scale = None
         self._preq = [0.0, 0]            # sum of squared standardised one-step-ahead errors, count
 
@@ -178,6 +186,63 @@ class GPIS:
         prior = np.where(kind < 0, m, g[np.arange(len(X)), np.maximum(kind, 0)])
         return y - prior
 
+    def _factor_rows(self, a: int, b: int) -> np.ndarray:
+        """(b - a, b) rows a..b of the Cholesky factor (assembled; a copy)."""
+        n0 = len(self._L0)
+        R = np.zeros((b - a, b))
+        if a < n0:
+            R[:min(n0, b) - a, :min(n0, b)] = self._L0[a:b, :b]
+        if b > n0:
+            R[max(n0 - a, 0):] = self._Tb[max(a - n0, 0):b - n0, :b]
+        return R
+
+    def _sync_V(self, upto: int | None = None) -> None:
+        """Extend the tracked points' columns V = L^-1 K(X, Q) by the rows added since they
+        were last needed (up to row ``upto``, default all): one pass over V for all of them
+        instead of one per :meth:`add`."""
+        a, n, m = self._nv, self.n if upto is None else upto, len(self._Qp)
+        if a >= n:
+            return
+        if m:
+            R = self._factor_rows(a, n)
+            rhs = self.kernel(self.X[a:n], self.kind[a:n], self._Qp, np.full(m, -1))
+            if a:
+                rhs -= R[:, :a] @ self._Vb[:a, :m]
+            Vk = solve_triangular(R[:, a:], rhs, lower=True, check_finite=False)
+            self._reserve(n, m)
+            self._Vb[a:n, :m] = Vk
+            self._vv = self._vv + np.einsum("ij,ij->j", Vk, Vk)
+        self._nv = n
+
+    def _sync_inverse(self, upto: int | None = None) -> None:
+        """Extend L^-1 and diag(K^-1) by the rows added since they were last needed (up to
+        row ``upto``, default all).
+
+        With R = [T0, T1] the factor's rows a.., L^-1 gains the rows [-T1^-1 T0 L0^-1, T1^-1]
+        (the bordered inverse), and diag(K^-1) their column norms squared: one pass over
+        L^-1 for every row added since, instead of one per :meth:`add`.
+        """
+        a, n = self._nl, self.n if upto is None else upto
+        if a >= n:
+            return
+        R = self._factor_rows(a, n)
+        T1i = solve_triangular(R[:, a:], np.eye(n - a), lower=True, check_finite=False)
+        self._Lib = _grown(self._Lib, n, n, a, a)
+        dKi = self._dKi_buf[:a]
+        if a:
+            left = -(T1i @ (R[:, :a] @ self._Lib[:a, :a]))
+            self._Lib[a:n, :a] = left
+            dKi = dKi + np.einsum("ij,ij->j", left, left)
+        self._Lib[a:n, a:n] = T1i
+        self._dKi_buf = np.concatenate([dKi, np.einsum("ij,ij->j", T1i, T1i)])
+        self._nl = n
+
+    @property
+    def _dKi(self) -> np.ndarray:
+        """diag(K^-1), brought up to date."""
+        self._sync_inverse()
+        return self._dKi_buf
+
     def add(self, X, kind, y, noise, *, scored: bool = True) -> None:
         """Append scalar observations and extend the Cholesky factor (bordered update).
 
@@ -198,23 +263,7 @@ class GPIS:
             W = self._solve(self.kernel(self.X, self.kind, X, kind))
             L2 = _chol(C - W.T @ W)
         self._append_rows(W, L2)
-        if len(self._Qp):
-            m = len(self._Qp)
-            Kq = self.kernel(X, kind, self._Qp, np.full(m, -1))
-            Vk = solve_triangular(L2, Kq - W.T @ self._Vb[:self.n, :m], lower=True, check_finite=False)
-            self._reserve(self.n + len(y), m)
-            self._Vb[self.n:self.n + len(y), :m] = Vk
-            self._vv = self._vv + np.einsum("ij,ij->j", Vk, Vk)
-        # L^-1 of the bordered factor: [[Li, 0], [-L2^-1 W^T Li, L2^-1]]; diag(K^-1) = column norms^2
-        n, k = self.n, len(y)
-        L2i = solve_triangular(L2, np.eye(k), lower=True, check_finite=False)
-        self._Lib = _grown(self._Lib, n + k, n + k, n, n)
-        if n:
-            left = -(L2i @ (W.T @ self._Lib[:n, :n]))
-            self._Lib[n:n + k, :n] = left
-            self._dKi = self._dKi + np.einsum("ij,ij->j", left, left)
-        self._Lib[n:n + k, n:n + k] = L2i
-        self._dKi = np.concatenate([self._dKi, np.einsum("ij,ij->j", L2i, L2i)])
+        k = len(y)
         self.scored = np.concatenate([self.scored, np.broadcast_to(np.asarray(scored, bool), (k,))])
         self.X = np.concatenate([self.X, X])
         self.kind = np.concatenate([self.kind, kind])
@@ -228,9 +277,10 @@ class GPIS:
         if self.n:
             self._L0 = _chol(self.kernel(self.X, self.kind, self.X, self.kind) + np.diag(self.noise))
             self._Lib = solve_triangular(self._L0, np.eye(self.n), lower=True, check_finite=False)
-            self._dKi = np.einsum("ij,ij->j", self._Lib, self._Lib)
+            self._dKi_buf = np.einsum("ij,ij->j", self._Lib, self._Lib)
         self._Vb = self._columns(self._Qp)
         self._vv = np.einsum("ij,ij->j", self._Vb, self._Vb)
+        self._nv = self._nl = self.n
         self._alpha = self._z = self._scale = None
 
     def relocate(self, X, y, Q, start: int = 0) -> None:
@@ -249,12 +299,15 @@ class GPIS:
         start = int(np.clip(start, 0, self.n))
         kind, noise, scored = self.kind, self.noise, self.scored
         moved_q = np.any(Q != self._Qp, axis=1)
+        self._sync_V(start)          # the kept rows of V and of L^-1 must be up to date
+        self._sync_inverse(start)
         # truncate to the leading rows: every kept factor has them as its leading block
         self._truncate(start)
         self.X, self.kind, self.y, self.noise = X[:start], kind[:start], y[:start], noise[:start]
         self.scored = scored[:start]
         Li = self._Lib[:start, :start]
-        self._dKi = np.einsum("ij,ij->j", Li, Li)
+        self._dKi_buf = np.einsum("ij,ij->j", Li, Li)
+        self._nv = self._nl = start
         self._Qp = Q
         if np.any(moved_q):
             self._Vb[:start, np.flatnonzero(moved_q)] = self._columns(Q[moved_q])
@@ -263,6 +316,9 @@ class GPIS:
         self._alpha = self._z = self._scale = None
         if start < len(y):
             self.add(X[start:], kind[start:], y[start:], noise[start:], scored=scored[start:])
+            # bring V and L^-1 up to date now: the relocation's cost stays in its own call
+            self._sync_V()
+            self._sync_inverse()
 
     def set_prior(self, prior) -> None:
         self.prior = prior
@@ -314,6 +370,7 @@ class GPIS:
     @property
     def _V(self) -> np.ndarray:
         """(n, M) L^-1 K(X, Q) for the tracked points (a copy)."""
+        self._sync_V()
         return self._Vb[:self.n, self._live]
 
     def _reserve(self, rows, cols) -> None:
@@ -332,6 +389,7 @@ class GPIS:
         """Add query points whose posterior mean :meth:`tracked_mean` keeps up to date."""
         Q = np.asarray(Q, float).reshape(-1, 3)
         if len(Q):
+            self._sync_V()
             m = len(self._Qp)
             self._reserve(self.n, m + len(Q))
             V = self._columns(Q)
@@ -358,6 +416,7 @@ class GPIS:
         m, _ = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m
+        self._sync_V()
         return m + (self._Vb[:self.n, :len(self._Qp)].T @ self.z)[self._live]
 
     @property
@@ -372,6 +431,7 @@ class GPIS:
         ``mean_std(Q, calibrated=calibrated)[1]``."""
         var = np.full(len(self._live), self.s2)
         if self.n and len(self._live):
+            self._sync_V()
             var = self.s2 - self._vv[self._live]
         lam = self.scale if calibrated else 1.0
         return np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
