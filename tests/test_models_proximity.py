@@ -312,3 +312,47 @@ def test_face_lower_bound_never_exceeds_the_face_cost(objects):
     gap = np.array(gap)
     assert gap.min() >= -1e-12
     assert np.mean(gap > 1e-9) > 0.5  # a bound, not the cost itself: most points project off the face
+
+
+def test_thread_choice_runs_the_faster_version_and_explores_the_other():
+    from touchloc.models._kernels import _ThreadChoice
+
+    ch = _ThreadChoice(512, 4096, explore=4)
+    assert ch.pick(100) == 0 and ch.pick(5000) == 1       # outside the middle: fixed
+    assert ch.pick(1000) == 0                             # nothing measured yet: one thread first
+    ch.record(0, 1000, 1.0)                               # a first call is not counted (compiling)
+    assert ch.rate == [None, None]
+    ch.record(0, 1000, 1e-3)
+    assert ch.pick(1000) == 1                             # the parallel version not measured yet
+    ch.record(1, 1000, 1.0)
+    ch.record(1, 1000, 5e-4)
+    ch.record(0, 2000, 5e-3)                              # one thread: 1 then 2.5 us per pair
+    assert ch.rate[0] == pytest.approx(0.8 * 1e-6 + 0.2 * 2.5e-6) and ch.rate[1] == pytest.approx(5e-7)
+    picks = [ch.pick(1000) for _ in range(8)]
+    assert picks.count(1) == 6 and picks.count(0) == 2   # the faster, and every 4th call the other
+    ch.record(0, 100, 1.0)                                # sizes outside the middle teach nothing
+    assert ch.rate[0] == pytest.approx(1.3e-6)
+
+
+def test_pose_costs_are_the_same_on_one_thread_and_in_parallel(objects, rng):
+    """The choice of kernel version changes the time only: every row is computed alike."""
+    from touchloc.models import _kernels as K
+
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 10, true, nor_noise=0.05)
+    poses = np.concatenate([true[None], random_poses(rng, 150, half=0.03)])
+    budget = np.full(len(poses), 0.5 * np.median(model._budget_costs(poses, contacts, "exact")[0].sum(axis=1)))
+    saved = K.POSE_COSTS_THREADS
+    out = {}
+    try:
+        for which, (low, high) in {"one": (10**9, 10**9), "parallel": (0, 0)}.items():
+            K.POSE_COSTS_THREADS = K._ThreadChoice(low, high)
+            for method in ("exact", "fast"):
+                out[which, method] = model._budget_costs(poses, contacts, method, budget=budget)
+    finally:
+        K.POSE_COSTS_THREADS = saved
+    for method in ("exact", "fast"):
+        (a, da), (b, db) = out["one", method], out["parallel", method]
+        assert np.array_equal(a, b) and np.array_equal(da, db) and 0 < da.sum() < len(poses)

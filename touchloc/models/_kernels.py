@@ -25,6 +25,7 @@ normal term) is already above the best cost, before the closest-point routine.
 
 from __future__ import annotations
 
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -51,6 +52,53 @@ warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified 
 #: Below this many queries the kernels run on one thread: starting the thread pool costs
 #: more than it saves (and much more on a loaded machine).
 PARALLEL_MIN = 4096
+
+
+class _ThreadChoice:
+    """Picks the one-thread or the parallel version of a kernel for calls of middling size
+    by their measured speed.
+
+    Calls of ``low`` to ``high`` items (pose-contact pairs) gain from the thread pool on an
+    idle machine and lose on a loaded one, where a parallel region waits for a thread that
+    shares its core (docs/benchmarks.md, "Localisation speed with few contacts"). Each
+    version's time per item is tracked (an exponential average over such calls); the faster
+    one runs, and every ``explore``-th call runs the other, so that a change of load is
+    seen. Both versions compute each row alike: the choice changes the time, never the
+    result. Races between threads only blur the averages.
+    """
+
+    def __init__(self, low: int, high: int, explore: int = 64):
+        self.low, self.high, self.explore = int(low), int(high), int(explore)
+        self.rate = [None, None]     # seconds per item: one thread, parallel
+        self._seen = [0, 0]
+        self._calls = 0
+
+    def pick(self, items: int) -> int:
+        """0 (one thread) or 1 (parallel)."""
+        if items >= self.high:
+            return 1
+        if items < self.low:
+            return 0
+        self._calls += 1
+        one, par = self.rate
+        if one is None or par is None:
+            return 0 if one is None else 1
+        best = 0 if one <= par else 1
+        return 1 - best if self._calls % self.explore == 0 else best
+
+    def record(self, which: int, items: int, seconds: float) -> None:
+        if not self.low <= items < self.high:
+            return
+        self._seen[which] += 1
+        if self._seen[which] == 1:
+            return    # the first call may have loaded or compiled the kernel
+        r = seconds / items
+        old = self.rate[which]
+        self.rate[which] = r if old is None else 0.8 * old + 0.2 * r
+
+
+#: the pose-cost kernel's choice: 512 pairs take about 0.15 ms on one thread (mug)
+POSE_COSTS_THREADS = _ThreadChoice(512, PARALLEL_MIN)
 
 
 
@@ -801,6 +849,11 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
         g = (grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off, grid.adj)
     if n == 0 or len(P) == 0:
         return np.zeros((n, len(P))), np.ones(n, bool)
-    kernel = _pose_costs if n * len(P) >= PARALLEL_MIN else _pose_costs_serial
-    return kernel(mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), tree.tri, tree.nrm, *g,
-                  tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+    items = n * len(P)
+    which = POSE_COSTS_THREADS.pick(items)
+    t0 = time.perf_counter()
+    out = (_pose_costs if which else _pose_costs_serial)(
+        mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), tree.tri, tree.nrm, *g,
+        tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+    POSE_COSTS_THREADS.record(which, items, time.perf_counter() - t0)
+    return out
