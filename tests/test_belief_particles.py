@@ -144,3 +144,15 @@ def test_trusted_belief_normalises_and_checks_its_weights():
     np.testing.assert_allclose(b.log_weights, ParticleBelief(P, [0.0, 1.0, 2.0]).log_weights)
     with pytest.raises(BeliefDegenerateError):
         ParticleBelief._trusted(P, np.array([0.0, np.nan, 1.0]))
+
+
+def test_checked_rotations_match_scipys_checked_conversion(rng):
+    # matrices made from quaternions, and products of them, as an estimator's particles are
+    R = Rotation.from_quat(rng.normal(size=(500, 4))).as_matrix()
+    R2 = Rotation.from_rotvec(0.01 * rng.normal(size=(500, 3))).as_matrix() @ R
+    for M in (R, R2, R2 @ np.swapaxes(R, 1, 2)):
+        assert np.array_equal(geometry.checked_rotations(M).as_quat(), Rotation.from_matrix(M).as_quat())
+    # within the 1e-6 that pose validation accepts, the two differ by about that much
+    bent = R + 1e-7 * rng.normal(size=R.shape)
+    angle = (geometry.checked_rotations(bent).inv() * Rotation.from_matrix(bent)).magnitude()
+    assert 0 < angle.max() < 1e-6

@@ -170,3 +170,16 @@ def test_csv_round_trip_keeps_order_after_header_reorder(tmp_path, rng):
     assert Contacts.from_csv(str(path)) == Contacts.from_csv(path)
     d = Contacts.from_csv(path)
     assert np.allclose(d.points, c.points, atol=1e-8) and np.allclose(d.normals, c.normals, atol=1e-8)
+
+
+@pytest.mark.parametrize("idx", [slice(0, 2), slice(2, None), [4, 0, 3], 1, np.array([True, False, True, True, False, False])])
+def test_a_subset_equals_the_contacts_built_from_its_rows(idx, rng):
+    c = Contacts(rng.normal(size=(6, 3)), rng.normal(size=(6, 3)) * 3.0)
+    sub = c[idx]
+    rows = np.atleast_1d(np.arange(6)[idx])
+    assert sub == Contacts(c.points[rows], c.normals[rows])  # exact: the same arithmetic
+    assert not sub.points.flags.writeable and not sub.normals.flags.writeable
+    assert not np.shares_memory(sub.points, c.points)
+    assert c[[1, 2]].normals is not None and Contacts(c.points)[[1, 2]].normals is None
+    with pytest.raises(IndexError):
+        c[[7]]

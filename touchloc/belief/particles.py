@@ -10,6 +10,7 @@ from .._util import as_poses, as_rng
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_instance,
                          as_mapping, as_positive_float, as_probability)
 from ..errors import BeliefDegenerateError, ValidationError
+from ..geometry import checked_rotations
 from .region import PoseRegion
 
 __all__ = ["ParticleBelief", "RESAMPLERS", "register_resampler", "systematic_resample"]
@@ -160,7 +161,7 @@ class ParticleBelief:
         w = self.weights
         out = np.eye(4)
         out[:3, 3] = w @ self.poses[:, :3, 3]
-        out[:3, :3] = Rotation.from_matrix(self.poses[:, :3, :3]).mean(weights=w).as_matrix()
+        out[:3, :3] = checked_rotations(self.poses[:, :3, :3]).mean(weights=w).as_matrix()
         return out
 
     def _rho(self) -> float:

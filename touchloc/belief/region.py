@@ -9,7 +9,7 @@ from .._util import as_poses, as_rng
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_nonnegative_float, as_pose,
                          as_positive_float)
 from ..errors import ValidationError
-from ..geometry import make_poses
+from ..geometry import checked_rotations, make_poses
 
 #: largest perturbation scale (m, pose metric) accepted: beyond it the rotations overflow
 MAX_SCALE = 1e6
@@ -183,8 +183,10 @@ class PoseRegion:
 
     def contains(self, poses, *, tol: float = 1e-9) -> np.ndarray:
         """(N,) bool: which poses lie in the region (rotation constraints included)."""
-        P = as_poses(poses)
-        tol = as_nonnegative_float(tol, "tol")
+        return self._contains(as_poses(poses), as_nonnegative_float(tol, "tol"))
+
+    def _contains(self, P, tol: float = 1e-9) -> np.ndarray:
+        """:meth:`contains` of poses already known to be rigid (an estimator's own)."""
         ok = np.all(np.abs(P[:, :3, 3] - self.center) <= self.half_extent + tol, axis=1)
         R = P[:, :3, :3]
         if self.rotation == "fixed":
@@ -209,7 +211,7 @@ class PoseRegion:
         dt = (P[:, :3, 3] - ref[:3, 3])[:, self.free_translation]
         if self.rotation == "fixed":
             return dt
-        w = Rotation.from_matrix(P[:, :3, :3] @ ref[:3, :3].T).as_rotvec()
+        w = checked_rotations(P[:, :3, :3] @ ref[:3, :3].T).as_rotvec()
         if self.rotation == "yaw":
             w = w[:, 2:]
         return np.concatenate([dt, self._rho() * w], axis=1)
@@ -252,7 +254,11 @@ class PoseRegion:
             raise ValidationError(f"scale must be <= {MAX_SCALE:g} m (a perturbation, not a teleport), got {s.max():g}")
         if s.shape not in ((), (1,), (n,)):
             raise ValidationError(f"scale must be one number or one per pose ({n},), got shape {s.shape}")
-        s = np.broadcast_to(s.reshape(-1) if s.ndim else s, (n,))
+        return self._perturb(P, np.broadcast_to(s.reshape(-1) if s.ndim else s, (n,)), rng, ball)
+
+    def _perturb(self, P, s, rng, ball: bool) -> np.ndarray:
+        """:meth:`perturb` of rigid poses (N, 4, 4) by checked scales (N,): no validation."""
+        n, d = len(P), self.dim
         if ball:
             g = rng.normal(size=(n, d))
             g /= np.linalg.norm(g, axis=1, keepdims=True)
@@ -287,7 +293,7 @@ class PoseRegion:
         if self.rotation == "yaw":
             y = self.yaw_of(P)
             return np.concatenate([t, rho * np.cos(y)[:, None], rho * np.sin(y)[:, None]], axis=1)
-        q = Rotation.from_matrix(P[:, :3, :3]).as_quat()
+        q = checked_rotations(P[:, :3, :3]).as_quat()
         q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
         return np.concatenate([t, 2.0 * rho * q], axis=1)
 

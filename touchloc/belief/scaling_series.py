@@ -13,7 +13,7 @@ from .._util import as_rng, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
-from ..geometry import make_poses
+from ..geometry import checked_rotations, make_poses
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
@@ -291,18 +291,18 @@ class ScalingSeries:
         costs = model._budget_costs
         if not prune or self.prune != "threshold" or N < 64:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
-        first = np.arange(max(1, K // 4))
-        rest = np.arange(len(first), K)
-        cost = costs(X, contacts[first], method)[0].sum(axis=1)
-        if len(rest) == 0:
+        n_first = max(1, K // 4)
+        cost = costs(X, contacts[:n_first], method)[0].sum(axis=1)
+        if n_first == K:
             return finite_loglik(-0.5 * cost / tau)
+        rest = contacts[n_first:]
         best = np.argsort(cost)[:32]
-        upper = float(np.min(cost[best] + costs(X[best], contacts[rest], method)[0].sum(axis=1)))
+        upper = float(np.min(cost[best] + costs(X[best], rest, method)[0].sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
         # a stopped particle's partial sum reaches its budget: with this margin, a value
         # strictly above the threshold (beyond rounding) and still below its full cost
         limit += 1e-9 * (1.0 + limit)
-        more, _ = costs(X, contacts[rest], method, budget=np.maximum(limit - cost, 0.0))
+        more, _ = costs(X, rest, method, budget=np.maximum(limit - cost, 0.0))
         cost += more.sum(axis=1)
         return finite_loglik(-0.5 * cost / tau)
 
@@ -544,7 +544,7 @@ class _Draws:
         g = rng.normal(size=(n, d))
         u = rng.random(n)
         rho = region._rho()
-        qc = Rotation.from_matrix(centers[:, :3, :3]).as_quat()
+        qc = checked_rotations(centers[:, :3, :3]).as_quat()
         qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
         # one compiled pass: the draws, their quaternions and their embedding
         t, q, emb = draw_full(g, u, qc, np.ascontiguousarray(centers[:, :3, 3]), np.asarray(pick, dtype=np.int64),

@@ -318,8 +318,10 @@ def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_
         Fraction of accepted moves, per move.
     """
     rng = as_rng(rng)
-    n = len(poses)
-    P, lw0 = poses, np.asarray(log_w, dtype=float)
+    # checked once here: the moves below make rigid poses from rigid poses
+    P = as_poses(poses, "poses")
+    n = len(P)
+    lw0 = np.asarray(log_w, dtype=float)
     l_old, l_new = np.asarray(l_old, dtype=float), np.asarray(l_new, dtype=float)
     beta, stages, acc = 0.0, 0, []
     target = ess_fraction * n
@@ -352,8 +354,8 @@ def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_
         while m < moves or (done < jumps and m < max_moves):
             m += 1
             s = scale * 10 ** rng.uniform(-1.5, 0.3, n)
-            Q = region.perturb(P, s, rng=rng, ball=False)
-            inside = region.contains(Q)
+            Q = region._perturb(P, s, rng, False)
+            inside = region._contains(Q)
             lq_old = np.zeros(n)
             lq_new = np.full(n, -np.inf)
             if inside.any():

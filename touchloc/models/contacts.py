@@ -76,7 +76,18 @@ class Contacts:
 
     def __getitem__(self, idx) -> "Contacts":
         idx = np.atleast_1d(np.arange(len(self))[idx])
-        return Contacts(self._points[idx], None if self._normals is None else self._normals[idx])
+        # rows of checked arrays: no new validation, but the same arithmetic as __init__
+        # (the normals divided by their norms again), so a subset equals Contacts(rows)
+        out = Contacts.__new__(Contacts)
+        P = self._points[idx]
+        P.flags.writeable = False
+        N = None
+        if self._normals is not None:
+            N = self._normals[idx]
+            N /= np.linalg.norm(N, axis=1)[:, None]
+            N.flags.writeable = False
+        out._points, out._normals = P, N
+        return out
 
     def __iter__(self):
         for i in range(len(self)):
