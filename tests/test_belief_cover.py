@@ -179,3 +179,20 @@ def test_annealed_likelihood_prunes_exactly_like_a_full_evaluation(mug, k):
         np.testing.assert_allclose(part[keep], full[keep], rtol=1e-12, atol=1e-9)
         if tau == 1.0:
             assert np.sum(part > full + 1e-6) > 0  # some particles were left unfinished
+
+
+def test_compiled_box_and_parent_tests_match_numpy_bit_for_bit(rng):
+    from touchloc.belief._cover import _beyond, in_box
+
+    for d in (3, 4, 6, 7):
+        E = rng.normal(size=(40, d))
+        parent = rng.integers(0, 40, 20000)
+        X = E[parent] + 0.3 * rng.normal(size=(20000, d))
+        for r in (0.2, 0.5, 0.9):
+            assert np.array_equal(_beyond(X, E, parent, r * r), np.sum((X - E[parent]) ** 2, axis=1) > r * r)
+    t = rng.uniform(-1, 1, size=(20000, 3))
+    t[:5] = [[0.5, 0, 0], [0.5 + 1e-9, 0, 0], [0.5 + 2e-9, 0, 0], [np.nan, 0, 0], [0, -0.7, 0.3]]
+    c, h = np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.7, 0.3])
+    got = in_box(t, c, h)
+    assert np.array_equal(got, np.all(np.abs(t - c) <= h + 1e-9, axis=1))
+    assert got[0] and got[1] and not got[2] and not got[3] and got[4]

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from .._cache import numba_cache_enabled
 
-__all__ = ["ball_counts", "accept_draws", "draw_full"]
+__all__ = ["ball_counts", "accept_draws", "draw_full", "in_box"]
 
 #: Above this many neighbour pairs (per candidate) the pair lists cost more (in time and
 #: memory) than counting otherwise: a capped scan where balls overlap heavily, else a
@@ -166,6 +166,36 @@ def draw_full(g, u, qc, tc, pick, free, r, rho):
     return t, q, emb
 
 
+@nb.njit(**_NB)
+def in_box(t, center, half_extent):
+    """(n,) bool: rows of ``t`` (n, 3) within ``half_extent`` (+1e-9) of ``center`` on every
+    axis; the same comparisons as numpy's ``np.all(np.abs(t - center) <= half_extent + 1e-9, 1)``."""
+    out = np.empty(t.shape[0], np.bool_)
+    for i in range(t.shape[0]):
+        ok = True
+        for j in range(t.shape[1]):
+            if not abs(t[i, j] - center[j]) <= half_extent[j] + 1e-9:
+                ok = False
+                break
+        out[i] = ok
+    return out
+
+
+@nb.njit(**_NB)
+def _beyond(X, E, parent, r2):
+    """(M,) bool: squared distance from each row of X to its parent's row of E above r2
+    (summed in numpy's order for rows this short, so the same test bit for bit)."""
+    out = np.empty(X.shape[0], np.bool_)
+    for q in range(X.shape[0]):
+        p = parent[q]
+        d = 0.0
+        for k in range(X.shape[1]):
+            t = X[q, k] - E[p, k]
+            d += t * t
+        out[q] = d > r2
+    return out
+
+
 #: Below this many candidates the counts run on one thread (the thread pool's start-up
 #: costs more than it saves, and much more on a loaded machine).
 PARALLEL_MIN = 4096
@@ -198,7 +228,7 @@ def _augment(E, X, parent, rr, flip_dims):
             flip_of = np.full(C, -1, np.int64)
             flip_of[near] = C + np.arange(len(near))
             fp = flip_of[parent]
-            far = (np.sum((X - E[parent]) ** 2, axis=1) > rr * rr) & (fp >= 0)
+            far = _beyond(X, E, parent, rr * rr) & (fp >= 0)
             anchor[far] = fp[far]
     return A, anchor
 

@@ -18,7 +18,7 @@ from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
-from ._cover import accept_draws, draw_full
+from ._cover import accept_draws, draw_full, in_box
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -553,7 +553,8 @@ class _Draws:
             q, t = sym._canonical(q, t)
             emb = np.concatenate([t[:, free], 2.0 * rho * q], axis=1)
         self._t, self._q = t, q
-        self.inside = np.all(np.abs(t - region.center) <= region.half_extent + 1e-9, axis=1)
+        self.inside = in_box(t, np.asarray(region.center, dtype=np.float64),
+                             np.asarray(region.half_extent, dtype=np.float64))
         self.centres_emb = np.concatenate([centers[:, :3, 3][:, free], 2.0 * rho * qc], axis=1)
         self.emb = emb
 

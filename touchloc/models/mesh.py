@@ -281,6 +281,11 @@ class MeshObject:
         cost (sigma_pos^2 / sigma_nor^2, in m^2); 0 for position-only queries. The tree's
         topology depends on it (rounded to 2 significant digits); its bounds do not.
         """
+        # the likelihood asks once per batch of poses: a weight seen before is answered at once
+        seen = ("bvh for", normal_weight) if type(normal_weight) is float else None
+        tree = self._cache.get(seen)
+        if tree is not None:
+            return tree
         from .._cache import cached_structure
         from . import _kernels
         from ._kernels import BVH, build_bvh
@@ -292,6 +297,8 @@ class MeshObject:
                                     lambda: build_bvh(self.triangles, self.face_normals, np.sqrt(key[1])),
                                     BVH, code=(_kernels,))
             self._cache[key] = tree
+        if seen is not None:
+            self._cache[seen] = tree
         return tree
 
 
