@@ -196,3 +196,21 @@ def test_compiled_box_and_parent_tests_match_numpy_bit_for_bit(rng):
     got = in_box(t, c, h)
     assert np.array_equal(got, np.all(np.abs(t - c) <= h + 1e-9, axis=1))
     assert got[0] and got[1] and not got[2] and not got[3] and got[4]
+
+
+def test_the_draws_are_the_same_on_one_thread_and_on_many(rng):
+    n, free = 6000, np.arange(3, dtype=np.int64)
+    g, u = rng.normal(size=(n, 6)), rng.random(n)
+    qc = rng.normal(size=(50, 4))
+    qc /= np.linalg.norm(qc, axis=1, keepdims=True)
+    tc, pick = rng.normal(size=(50, 3)), rng.integers(0, 50, n)
+    outs = []
+    for kernel in (_cover._draw_full_parallel, _cover._draw_full_serial):
+        t, q, emb = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, 7))
+        kernel(g, u, qc, tc, pick, free, 0.05, 0.1, t, q, emb)
+        outs.append((t, q, emb))
+    for a, b in zip(*outs):
+        assert np.array_equal(a, b)
+    t, q, emb = outs[0]
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0) and np.all(q[:, 3] >= 0)
+    assert np.array_equal(emb[:, 3:], 0.2 * q)

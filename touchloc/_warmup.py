@@ -157,8 +157,12 @@ def _warm_cover():
     # the draws of full rotations (one signature, whatever the number of free axes)
     g = np.zeros((1, 6))
     g[0, 0] = 1.0
-    C.draw_full(g, np.full(1, 0.5), np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), np.zeros(1, dtype=np.int64),
-                np.arange(3, dtype=np.int64), 0.01, 0.05)
+    args = (g, np.full(1, 0.5), np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), np.zeros(1, dtype=np.int64),
+            np.arange(3, dtype=np.int64), 0.01, 0.05, np.empty((1, 3)), np.empty((1, 4)), np.empty((1, 7)))
+    for kernel in (C._draw_full_parallel, C._draw_full_serial):
+        kernel(*args)
+    C.in_box(np.zeros((1, 3)), np.zeros(3), np.ones(3))
+    C._beyond(X, A, anchor, 1.0)
 
 
 class SetUp:

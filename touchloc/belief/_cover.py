@@ -116,7 +116,50 @@ def _count_capped_serial(A, X, r2, cap):
     return out
 
 
+@nb.njit(inline="always", **_NB)
+def _draw_one(i, g, u, qc, tc, pick, free, r, rho, t, q, emb):
+    d = g.shape[1]
+    k = free.shape[0]
+    nrm = 0.0
+    for j in range(d):
+        nrm += g[i, j] * g[i, j]
+    scale = r * u[i] ** (1.0 / d) / np.sqrt(nrm)
+    c = pick[i]
+    for j in range(3):
+        t[i, j] = tc[c, j]
+    for j in range(k):
+        t[i, free[j]] += g[i, j] * scale
+        emb[i, j] = t[i, free[j]]
+    wx = g[i, k] * scale / rho
+    wy = g[i, k + 1] * scale / rho
+    wz = g[i, k + 2] * scale / rho
+    a = np.sqrt(wx * wx + wy * wy + wz * wz)
+    sa = np.sin(0.5 * a) / a if a > 1e-6 else 0.5 - a * a / 48.0
+    px, py, pz, pw = wx * sa, wy * sa, wz * sa, np.cos(0.5 * a)
+    qx, qy, qz, qw = qc[c, 0], qc[c, 1], qc[c, 2], qc[c, 3]
+    # Hamilton product p q: the centre's rotation, then the perturbation
+    x = pw * qx + qw * px + (py * qz - pz * qy)
+    y = pw * qy + qw * py + (pz * qx - px * qz)
+    z = pw * qz + qw * pz + (px * qy - py * qx)
+    w = pw * qw - (px * qx + py * qy + pz * qz)
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    q[i, 0], q[i, 1], q[i, 2], q[i, 3] = x, y, z, w
+    emb[i, k], emb[i, k + 1], emb[i, k + 2], emb[i, k + 3] = 2 * rho * x, 2 * rho * y, 2 * rho * z, 2 * rho * w
+
+
+@nb.njit(parallel=True, **_NB)
+def _draw_full_parallel(g, u, qc, tc, pick, free, r, rho, t, q, emb):
+    for i in nb.prange(g.shape[0]):
+        _draw_one(i, g, u, qc, tc, pick, free, r, rho, t, q, emb)
+
+
 @nb.njit(**_NB)
+def _draw_full_serial(g, u, qc, tc, pick, free, r, rho, t, q, emb):
+    for i in range(g.shape[0]):
+        _draw_one(i, g, u, qc, tc, pick, free, r, rho, t, q, emb)
+
+
 def draw_full(g, u, qc, tc, pick, free, r, rho):
     """Candidates uniform in the metric balls of radius ``r`` around centres (full rotations).
 
@@ -131,38 +174,10 @@ def draw_full(g, u, qc, tc, pick, free, r, rho):
     Returns ``t`` (n, 3), ``q`` (n, 4) and the embedding (n, k + 4): free translation,
     then ``2 rho q`` (:meth:`PoseRegion.embed`).
     """
-    n, d = g.shape
-    k = free.shape[0]
-    t = np.empty((n, 3))
-    q = np.empty((n, 4))
-    emb = np.empty((n, k + 4))
-    for i in range(n):
-        nrm = 0.0
-        for j in range(d):
-            nrm += g[i, j] * g[i, j]
-        scale = r * u[i] ** (1.0 / d) / np.sqrt(nrm)
-        c = pick[i]
-        for j in range(3):
-            t[i, j] = tc[c, j]
-        for j in range(k):
-            t[i, free[j]] += g[i, j] * scale
-            emb[i, j] = t[i, free[j]]
-        wx = g[i, k] * scale / rho
-        wy = g[i, k + 1] * scale / rho
-        wz = g[i, k + 2] * scale / rho
-        a = np.sqrt(wx * wx + wy * wy + wz * wz)
-        sa = np.sin(0.5 * a) / a if a > 1e-6 else 0.5 - a * a / 48.0
-        px, py, pz, pw = wx * sa, wy * sa, wz * sa, np.cos(0.5 * a)
-        qx, qy, qz, qw = qc[c, 0], qc[c, 1], qc[c, 2], qc[c, 3]
-        # Hamilton product p q: the centre's rotation, then the perturbation
-        x = pw * qx + qw * px + (py * qz - pz * qy)
-        y = pw * qy + qw * py + (pz * qx - px * qz)
-        z = pw * qz + qw * pz + (px * qy - py * qx)
-        w = pw * qw - (px * qx + py * qy + pz * qz)
-        if w < 0.0:
-            x, y, z, w = -x, -y, -z, -w
-        q[i, 0], q[i, 1], q[i, 2], q[i, 3] = x, y, z, w
-        emb[i, k], emb[i, k + 1], emb[i, k + 2], emb[i, k + 3] = 2 * rho * x, 2 * rho * y, 2 * rho * z, 2 * rho * w
+    n, k = g.shape[0], len(free)
+    t, q, emb = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, k + 4))
+    kernel = _draw_full_parallel if n >= PARALLEL_MIN else _draw_full_serial
+    kernel(g, u, qc, tc, pick, free, float(r), float(rho), t, q, emb)
     return t, q, emb
 
 
