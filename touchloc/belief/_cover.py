@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from .._cache import numba_cache_enabled
 
-__all__ = ["ball_counts", "accept_draws", "draw_full", "in_box"]
+__all__ = ["BallCounter", "ball_counts", "accept_draws", "draw_full", "in_box"]
 
 #: Above this many neighbour pairs (per candidate) the pair lists cost more (in time and
 #: memory) than counting otherwise: a capped scan where balls overlap heavily, else a
@@ -226,26 +226,18 @@ def _capped(A, X, r2, cap):
     return kernel(A, X, r2, cap)
 
 
-def _augment(E, X, parent, rr, flip_dims):
-    """Centres plus the flipped copies that can matter, and each candidate's anchor: the
-    copy of its parent within ``rr`` of it."""
-    C = len(E)
-    A = E
-    anchor = parent.copy()
-    if flip_dims:
-        # the sign-fixed coordinate of a flipped copy is -s: at distance >= s from any
-        # sign-fixed point, so only copies with s <= rr can count
-        near = np.flatnonzero(E[:, -1] <= rr)
-        if len(near):
-            F = E[near].copy()
-            F[:, -flip_dims:] *= -1.0
-            A = np.vstack([E, F])
-            flip_of = np.full(C, -1, np.int64)
-            flip_of[near] = C + np.arange(len(near))
-            fp = flip_of[parent]
-            far = _beyond(X, E, parent, rr * rr) & (fp >= 0)
-            anchor[far] = fp[far]
-    return A, anchor
+def _flipped_copies(E, rr, flip_dims):
+    """Centres plus the flipped copies that can matter, and the row of each centre's copy
+    (-1: none). The sign-fixed coordinate of a flipped copy is -s: at distance >= s from
+    any sign-fixed point, so only copies of centres with s <= rr can count."""
+    near = np.flatnonzero(E[:, -1] <= rr) if flip_dims else np.zeros(0, np.int64)
+    if len(near) == 0:
+        return E, None
+    F = E[near].copy()
+    F[:, -flip_dims:] *= -1.0
+    flip_of = np.full(len(E), -1, np.int64)
+    flip_of[near] = len(E) + np.arange(len(near))
+    return np.vstack([E, F]), flip_of
 
 
 def _plan(tree, n, rr, n_queries, cap):
@@ -266,6 +258,67 @@ def _plan(tree, n, rr, n_queries, cap):
 
 def _tree_counts(tree, X, rr):
     return np.asarray(tree.query_ball_point(X, rr, return_length=True, workers=-1), dtype=np.int64)
+
+
+class BallCounter:
+    """Ball counts for candidates drawn from the balls of radius ``r`` around a set of
+    centres: the centres' tree and neighbour lists are built once and serve every batch
+    of candidates drawn from these balls.
+
+    ``n_queries`` (the candidates expected in a batch) and ``cap`` choose how to count
+    (:func:`_plan`); see :func:`ball_counts` and :func:`accept_draws` for the rest.
+    """
+
+    def __init__(self, centres_emb, r, *, flip_dims: int = 0, n_queries: int = 0, cap=16):
+        self.E = np.ascontiguousarray(centres_emb, dtype=np.float64)
+        self.rr = r * 1.0000001
+        self.cap = cap
+        self.A, self._flip_of = _flipped_copies(self.E, self.rr, flip_dims)
+        self.tree = cKDTree(self.A)
+        self.how, self._lists = ("tree", None) if len(self.E) == 0 else _plan(self.tree, len(self.A), self.rr,
+                                                                                n_queries, cap)
+
+    def _anchor(self, X, parent):
+        """Each candidate's anchor: its parent, or the parent's flipped copy where that is
+        the one within ``rr`` of it."""
+        anchor = parent.copy()
+        if self._flip_of is not None:
+            fp = self._flip_of[parent]
+            far = _beyond(X, self.E, parent, self.rr * self.rr) & (fp >= 0)
+            anchor[far] = fp[far]
+        return anchor
+
+    def counts(self, X, parent):
+        """(M,) exact counts of the candidates X (M, D) (rows of their parents' balls)."""
+        if self.how != "lists":
+            return _tree_counts(self.tree, X, self.rr)
+        return _in_lists(self.A, self._lists[0], self._lists[1], X, self._anchor(X, parent), self.rr * self.rr)
+
+    def accept(self, cand_emb, parent, rng, mask=None):
+        """(M,) bool: each candidate kept with probability 1 / count (see :func:`accept_draws`)."""
+        X = np.ascontiguousarray(cand_emb, dtype=np.float64)
+        parent = np.asarray(parent, dtype=np.int64)
+        M = len(X)
+        idx = np.arange(M) if mask is None else np.flatnonzero(mask)
+        out = np.zeros(M, dtype=bool)
+        # one uniform per candidate, masked or not: the random stream (and so the result)
+        # is that of counting every candidate
+        u = rng.random(M)[idx]
+        if len(idx) == 0 or len(self.E) == 0:
+            return out
+        X, parent = X[idx], parent[idx]
+        rr, cap = self.rr, self.cap
+        if self.how != "capped":
+            out[idx] = u * np.maximum(self.counts(X, parent), 1) < 1.0
+            return out
+        cnt = np.maximum(_capped(self.A, X, rr * rr, cap), 1)
+        keep = u * cnt < 1.0
+        sat = np.flatnonzero(keep & (cnt >= cap))
+        if len(sat):
+            full = _tree_counts(self.tree, X[sat], rr)
+            keep[sat] = rng.random(len(sat)) * full < cap
+        out[idx] = keep
+        return out
 
 
 def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
@@ -291,15 +344,9 @@ def ball_counts(centres_emb, cand_emb, parent, r, *, flip_dims: int = 0):
     (M,) int
         The counts (exact; >= 1 up to rounding).
     """
-    E = np.ascontiguousarray(centres_emb, dtype=np.float64)
     X = np.ascontiguousarray(cand_emb, dtype=np.float64)
-    rr = r * 1.0000001
-    A, anchor = _augment(E, X, np.asarray(parent, dtype=np.int64), rr, flip_dims)
-    tree = cKDTree(A)
-    how, lists = _plan(tree, len(A), rr, len(X), np.inf)
-    if how != "lists":
-        return _tree_counts(tree, X, rr)
-    return _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
+    counter = BallCounter(centres_emb, r, flip_dims=flip_dims, n_queries=len(X), cap=np.inf)
+    return counter.counts(X, np.asarray(parent, dtype=np.int64))
 
 
 def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, mask=None, cap: int = 16):
@@ -316,34 +363,6 @@ def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, m
     -------
     (M,) bool
     """
-    E = np.ascontiguousarray(centres_emb, dtype=np.float64)
-    X = np.ascontiguousarray(cand_emb, dtype=np.float64)
-    parent = np.asarray(parent, dtype=np.int64)
-    M = len(X)
-    idx = np.arange(M) if mask is None else np.flatnonzero(mask)
-    out = np.zeros(M, dtype=bool)
-    # one uniform per candidate, masked or not: the random stream (and so the result)
-    # is that of counting every candidate
-    u = rng.random(M)[idx]
-    if len(idx) == 0 or len(E) == 0:
-        return out
-    X, parent = X[idx], parent[idx]
-    rr = r * 1.0000001
-    A, anchor = _augment(E, X, parent, rr, flip_dims)
-    tree = cKDTree(A)
-    how, lists = _plan(tree, len(A), rr, len(X), cap)
-    if how != "capped":
-        if how == "lists":
-            cnt = _in_lists(A, lists[0], lists[1], X, anchor, rr * rr)
-        else:
-            cnt = _tree_counts(tree, X, rr)
-        out[idx] = u * np.maximum(cnt, 1) < 1.0
-        return out
-    cnt = np.maximum(_capped(A, X, rr * rr, cap), 1)
-    keep = u * cnt < 1.0
-    sat = np.flatnonzero(keep & (cnt >= cap))
-    if len(sat):
-        full = _tree_counts(tree, X[sat], rr)
-        keep[sat] = rng.random(len(sat)) * full < cap
-    out[idx] = keep
-    return out
+    n = len(cand_emb) if mask is None else int(np.count_nonzero(mask))
+    counter = BallCounter(centres_emb, r, flip_dims=flip_dims, n_queries=n, cap=cap)
+    return counter.accept(cand_emb, parent, rng, mask)
