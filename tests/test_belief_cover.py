@@ -154,6 +154,49 @@ def test_cover_matches_the_reference_cover(mug):
     assert np.median(d) == pytest.approx(np.median(dy), rel=0.05)
 
 
+@pytest.mark.parametrize("cap", [1500, 600])
+def test_a_capped_cover_draws_in_batches_and_still_matches_the_reference(mug, monkeypatch, cap):
+    """Where the particle cap binds, the cover draws only about what fills it (batches of
+    whole rounds over the centres), and its particles and volume are still those of the
+    reference cover, which draws everything and thins."""
+    from touchloc.belief import scaling_series as ss_mod
+
+    drawn = []
+
+    class Counted(ss_mod._Draws):
+        def __init__(self, region, centers, pick, *a, **kw):
+            drawn.append(np.bincount(pick, minlength=len(centers)))
+            super().__init__(region, centers, pick, *a, **kw)
+
+    monkeypatch.setattr(ss_mod, "_Draws", Counted)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full").with_rho(mug.radius)
+    centres = _cluster(region, 400, 0.01, np.random.default_rng(4))
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    # 400 centres x 13 draws: in rounds over the centres under a cap of 1500 (5200 <= 4 x 1500),
+    # at random under 600; about 2800 would be kept, so both caps bind
+    ss_new, ss_ref = ScalingSeries(model, rng=0, max_particles=cap), ScalingSeries(model, rng=0, max_particles=cap)
+    tree = cKDTree(np.vstack([region.embed(centres), region.embed_flipped(centres)]))
+    vol_new, vol_ref, d_new, d_ref, n_drawn = [], [], [], [], []
+    for s in range(6):
+        ss_new.rng, ss_ref.rng = np.random.default_rng(s), np.random.default_rng(1000 + s)
+        ss_new._even_density_cover(region, centres, 0.01, 0.0089)  # sets the acceptance rate
+        drawn.clear()
+        X, v = ss_new._even_density_cover(region, centres, 0.01, 0.0089)
+        Y, w = ss_ref._even_density_cover_reference(region, centres, 0.01, 0.0089)
+        assert len(X) == len(Y) == cap
+        per_centre = np.sum(drawn, axis=0)
+        if cap == 1500:  # whole rounds: every centre its share
+            assert np.all(per_centre == per_centre[0])
+        n_drawn.append(per_centre.sum())
+        vol_new.append(v), vol_ref.append(w)
+        d_new.append(tree.query(region.embed(X))[0]), d_ref.append(tree.query(region.embed(Y))[0])
+    full = min(len(centres) * int(np.ceil(6 * (0.01 / 0.0089) ** 6)), 4 * cap)
+    assert max(n_drawn) < 0.7 * full
+    assert np.mean(vol_new) == pytest.approx(np.mean(vol_ref), rel=0.05)
+    assert np.concatenate(d_new).max() <= 0.01 * (1 + 1e-6)
+    assert np.median(np.concatenate(d_new)) == pytest.approx(np.median(np.concatenate(d_ref)), rel=0.05)
+
+
 @pytest.mark.parametrize("k", [6, 30])
 def test_annealed_likelihood_prunes_exactly_like_a_full_evaluation(mug, k):
     """Scaling Series stops evaluating particles that the prune step drops anyway: the

@@ -18,7 +18,7 @@ from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
-from ._cover import accept_draws, draw_full, in_box
+from ._cover import BallCounter, draw_full, in_box
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -166,6 +166,7 @@ class ScalingSeries:
         self.m = int(m_per_delta)
         self.n_initial = int(n_initial)
         self.max_particles = int(max_particles)
+        self._acceptance = None  # the last cover's acceptance rate (sizes the next one's batches)
         self.dynamics = dynamics
         self.rho = rho
         self.progress = progress
@@ -211,25 +212,75 @@ class ScalingSeries:
         dim = region.dim
         rng = self.rng
         n_c = len(centers)
-        pick = self._pick_centres(n_c, dim, delta_prev, delta)
-        draws = _Draws(region, centers, pick, delta_prev, rng, sym)
-        keep = accept_draws(draws.centres_emb, draws.emb, pick, delta_prev, rng, mask=draws.inside,
-                            flip_dims=4 if region.rotation == "full" else 0)
-        idx, volume = self._thin(keep, n_c, dim, delta_prev, delta)
-        if idx is None:  # every draw fell outside the region: keep the centres
+        pick, rounds = self._pick_centres(n_c, dim, delta_prev, delta)
+        flip = 4 if region.rotation == "full" else 0
+        counter, parts = None, []
+        n_drawn = n_kept = 0
+        start, ratio = 0, self.m * (delta_prev / delta) ** dim
+        while start < len(pick):
+            stop = self._next_batch(start, len(pick), n_c if rounds else 1, n_drawn, n_kept, n_c * ratio)
+            batch = pick[start:stop]
+            draws = _Draws(region, centers, batch, delta_prev, rng, sym)
+            if counter is None:
+                counter = BallCounter(draws.centres_emb, delta_prev, flip_dims=flip,
+                                      n_queries=int(np.count_nonzero(draws.inside)))
+            keep = counter.accept(draws.emb, batch, rng, mask=draws.inside)
+            parts.append((draws, np.flatnonzero(keep)))
+            n_drawn, n_kept, start = n_drawn + len(batch), n_kept + len(parts[-1][1]), stop
+            if n_kept >= self._target(n_c * ratio * n_kept / n_drawn):
+                break
+        self._acceptance = n_kept / n_drawn
+        volume = n_c * ball_volume(dim, delta_prev) * n_kept / n_drawn
+        if n_kept == 0:  # every draw fell outside the region: keep the centres
             return centers.copy(), volume
-        return draws.poses(idx), volume
+        # at most m per new ball of the kept draws, chosen uniformly among them
+        n_target = self._target(n_c * ratio * n_kept / n_drawn)
+        chosen = np.arange(n_kept)
+        if n_kept > n_target:
+            chosen = rng.choice(n_kept, n_target, replace=False)
+        bounds = np.cumsum([0] + [len(i) for _, i in parts])
+        out = []
+        for (draws, idx), lo, hi in zip(parts, bounds[:-1], bounds[1:]):
+            mine = chosen[(chosen >= lo) & (chosen < hi)] - lo
+            if len(mine):
+                out.append(draws.poses(idx[mine]))
+        return np.concatenate(out), volume
+
+    def _target(self, balls: float) -> int:
+        """Particles of a cover whose union is worth ``balls`` new balls: m per ball, capped."""
+        return int(np.clip(round(balls), 1, self.max_particles))
+
+    def _next_batch(self, start, total, stride, n_drawn, n_kept, m_balls):
+        """End of the next batch of draws: all of them, unless the particle cap will bind.
+
+        Where the cap binds (the kept draws would number ``m_balls`` times the acceptance
+        rate, well above ``max_particles``), most draws would be thinned away unseen, so they
+        are drawn in batches sized to fill the cap with a fifth to spare, at the acceptance
+        rate measured so far in this scale (else at the previous scale's). The batches are
+        whole rounds of the centres (``stride``), so each centre keeps its share of draws.
+        """
+        rate = n_kept / n_drawn if n_drawn else self._acceptance
+        if rate is None or rate <= 0 or m_balls * rate <= 1.25 * self.max_particles:
+            return total
+        need = 1.2 * (self.max_particles - n_kept) / rate
+        stop = start + int(np.ceil(max(need, 1.0) / stride)) * stride
+        return total if stop >= 0.8 * total else stop
 
     def _pick_centres(self, n_c, dim, delta_prev, delta):
-        """Which centre each draw comes from: m draws per new ball's share of the old one."""
+        """Which centre each draw comes from: m draws per new ball's share of the old one, in
+        rounds over the centres (and whether they are rounds); beyond 4 x ``max_particles``
+        draws, centres drawn at random instead."""
         per = max(1, int(np.ceil(self.m * (delta_prev / delta) ** dim)))
         total = min(n_c * per, 4 * self.max_particles)
-        return self.rng.integers(0, n_c, total) if total < n_c * per else np.repeat(np.arange(n_c), per)
+        if total < n_c * per:
+            return self.rng.integers(0, n_c, total), False
+        return np.tile(np.arange(n_c), per), True
 
     def _thin(self, keep, n_c, dim, delta_prev, delta):
-        """The union's volume from the acceptance rate, and at most m per new ball of the kept draws."""
+        """The reference cover's thinning: the union's volume from the acceptance rate, and
+        at most m per new ball of the kept draws."""
         volume = n_c * ball_volume(dim, delta_prev) * keep.mean()
-        n_target = int(np.clip(round(self.m * volume / ball_volume(dim, delta)), 1, self.max_particles))
+        n_target = self._target(self.m * volume / ball_volume(dim, delta))
         idx = np.flatnonzero(keep)
         if len(idx) == 0:
             return None, volume
@@ -248,7 +299,7 @@ class ScalingSeries:
         dim = region.dim
         rng = self.rng
         n_c = len(centers)
-        pick = self._pick_centres(n_c, dim, delta_prev, delta)
+        pick, _ = self._pick_centres(n_c, dim, delta_prev, delta)
         cand = region.perturb(centers[pick], delta_prev, rng=rng, ball=True)
         inside = region.contains(cand)
         emb_c = region.embed(centers)
@@ -377,6 +428,7 @@ class ScalingSeries:
             first = False
             volume = np.nan
         zoom = 2.0 ** (-1.0 / dim)
+        self._acceptance = None
         n_scales = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
         delta = delta0
         steps = progress(range(n_scales + 1), total=n_scales + 1, desc="scaling series", enabled=self.progress)
