@@ -356,3 +356,52 @@ def test_pose_costs_are_the_same_on_one_thread_and_in_parallel(objects, rng):
     for method in ("exact", "fast"):
         (a, da), (b, db) = out["one", method], out["parallel", method]
         assert np.array_equal(a, b) and np.array_equal(da, db) and 0 < da.sum() < len(poses)
+
+
+@pytest.mark.parametrize("name", ["mug", "lemon", "bread"])
+@pytest.mark.parametrize("normals", [True, False])
+def test_the_bound_table_never_exceeds_the_exact_cost(objects, rng, name, normals):
+    """Lower bounds of d_M^2 near the surface, in the table's margin and beyond it, with
+    and without an outlier cap; and they are informative away from the surface."""
+    obj = objects[name]
+    ext = float(obj.extents.max())
+    for cap in (None, 3.0):
+        model = ProximityModel(obj, 0.002, np.deg2rad(5) if normals else None, outlier_distance=cap)
+        true = random_poses(rng, 1)[0]
+        contacts = noisy_contacts(obj, rng, 12, true, pos_noise=0.004, nor_noise=0.3)
+        if not normals:
+            contacts = Contacts(contacts.points)
+        poses = np.concatenate([random_poses(rng, 150, half=0.01) @ true,      # near the surface
+                                random_poses(rng, 150, half=0.5 * ext) @ true,  # in the margin
+                                random_poses(rng, 50, half=3.0 * ext) @ true])   # beyond the table
+        exact = model._budget_costs(poses, contacts, "exact")[0]
+        lower = model._lower_costs(poses, contacts)
+        assert lower.shape == exact.shape and np.all(lower >= 0)
+        assert np.all(lower <= exact)
+        far = exact > 0.5 * min(100.0, model.cost_cap)
+        assert far.sum() > 100 and np.median(lower[far] / exact[far]) > 0.2  # a bound that prunes
+
+
+def test_costs_stopped_by_their_bounds_still_reach_the_budget(objects, rng):
+    """With lower bounds, a pose stops as soon as its costs so far plus its remaining
+    bounds reach the budget: its row then sums to at least the budget and no entry exceeds
+    its cost; every completed row is the plain evaluation's."""
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 10, true, nor_noise=0.05)
+    poses = np.concatenate([true[None], random_poses(rng, 400, half=0.03) @ true])
+    lower = model._lower_costs(poses, contacts)
+    for method in ("exact", "fast"):
+        full = model._budget_costs(poses, contacts, method)[0]
+        budget = np.full(len(poses), np.quantile(full.sum(axis=1), 0.3) * (1 + 1e-7))  # equal to no row sum
+        plain, plain_done = model._budget_costs(poses, contacts, method, budget=budget)
+        got, done = model._budget_costs(poses, contacts, method, budget=budget, lower=lower)
+        assert np.array_equal(done, full.sum(axis=1) < budget)  # the same poses complete
+        assert np.array_equal(done, plain_done)
+        assert np.array_equal(got[done], full[done])
+        assert np.all(got[~done].sum(axis=1) >= budget[~done] * (1 - 1e-12))
+        assert np.all(got <= full * (1 + 1e-12))
+        # the bounds stop some poses without a single search, and the rest earlier
+        assert np.any(np.all(got[~done] == lower[~done], axis=1))
+        assert np.count_nonzero(got[~done] != lower[~done]) < np.count_nonzero(plain[~done])

@@ -133,6 +133,9 @@ def _warm(obj, full):
         model.query_costs(PP, NN, method=method)
         for poses in (one, many):  # the poses x contacts pass of the estimators, both forms
             model.contact_costs(poses, Contacts(P, N), method=method)
+            # Scaling Series' pruned pass: the bounds, then costs that stop on them
+            lower = model._lower_costs(poses, Contacts(P, N))
+            model._budget_costs(poses, Contacts(P, N), method, budget=np.ones(len(poses)), lower=lower)
     if full:
         model.query_costs(P, None, method="fast")  # position-only grid lists
         model.query_costs(P, N, method="bruteforce")
@@ -239,6 +242,7 @@ def prepare_models(models=(), contacts=None, *, build: bool = False) -> SetUp:
                 m.query_costs(P, N, method="exact")
             if m.method in ("auto", "fast"):
                 m.query_costs(P, N, method="fast")
+            m._bound(m._weight(N is not None))  # Scaling Series' lower bounds
         setup.collect()
     return setup
 

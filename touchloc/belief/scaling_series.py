@@ -321,15 +321,16 @@ class ScalingSeries:
         a particle's contacts are evaluated only until the threshold prune is sure to drop
         it whatever its other contacts say.
 
-        Costs are non-negative, so a particle whose partial cost already exceeds the full
-        cost of the best particle by 2 tau log(1 / prune_ratio) is pruned. A first group
-        of contacts is evaluated for every particle and the best particles by it
-        completely, which bounds the best cost from above; every other particle then
-        gets the rest of its contacts, one at a time, with the budget that bound leaves
-        it (and each nearest-face search stops as soon as no face can be within the
-        budget). The prune keeps exactly the particles it keeps on complete evaluations,
-        with the same weights; the dropped ones get their partial value (above the threshold,
-        below their full value).
+        Costs are non-negative, so a particle whose cost is sure to exceed the full cost
+        of the best particle by 2 tau log(1 / prune_ratio) is pruned. Every pair first
+        gets a lower bound from the model's table (:mod:`touchloc.models._bounds`, a lookup
+        each); the 32 particles best by their bounds, evaluated completely, bound the best
+        cost from above. Every particle then gets its contacts one at a time and stops as
+        soon as its costs so far plus the bounds of its remaining contacts reach that
+        threshold (at once, when the bounds alone do); each nearest-face search stops as
+        soon as no face can be within what the budget leaves it. The prune keeps exactly
+        the particles it keeps on complete evaluations, with the same weights; the
+        dropped ones get a value above the threshold and below their full value.
         """
         model = self.model
         K, N = len(contacts), len(X)
@@ -342,20 +343,17 @@ class ScalingSeries:
         costs = model._budget_costs
         if not prune or self.prune != "threshold" or N < 64:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
-        n_first = max(1, K // 4)
-        cost = costs(X, contacts[:n_first], method)[0].sum(axis=1)
-        if n_first == K:
-            return finite_loglik(-0.5 * cost / tau)
-        rest = contacts[n_first:]
-        best = np.argsort(cost)[:32]
-        upper = float(np.min(cost[best] + costs(X[best], rest, method)[0].sum(axis=1)))
+        # lower bounds of every pair from a table (a lookup each): the particles best by
+        # them, evaluated completely, bound the best cost from above
+        lower = model._lower_costs(X, contacts)
+        best = np.argsort(lower.sum(axis=1))[:32]
+        upper = float(np.min(costs(X[best], contacts, method)[0].sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
-        # a stopped particle's partial sum reaches its budget: with this margin, a value
-        # strictly above the threshold (beyond rounding) and still below its full cost
+        # a stopped particle's value reaches the limit: with this margin, a value strictly
+        # above the threshold (beyond rounding) and still below its full cost
         limit += 1e-9 * (1.0 + limit)
-        more, _ = costs(X, rest, method, budget=np.maximum(limit - cost, 0.0))
-        cost += more.sum(axis=1)
-        return finite_loglik(-0.5 * cost / tau)
+        cost, _ = costs(X, contacts, method, budget=np.full(N, limit), lower=lower)
+        return finite_loglik(-0.5 * cost.sum(axis=1) / tau)
 
     def _prune(self, poses, log_w):
         """Drop low-probability regions: "resample" keeps the distinct particles of a

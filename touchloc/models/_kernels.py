@@ -730,20 +730,37 @@ def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
 
 
 @nb.njit(inline="always", **_NB)
-def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
-              adj, plo, phi, nlo, nhi, left, right, start, count, out):
+def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
+              ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out):
     """Costs of pose i for every contact, each at most ``cap``, in order, until they reach
     the pose's budget.
 
     Returns True when every contact was evaluated (their sum is below the budget);
     otherwise the sum of out[i] is at least the budget and the remaining entries are 0.
+
+    With ``use_lower``, ``lower[i]`` holds lower bounds of the pose's costs: the pose
+    stops as soon as its costs so far plus the bounds of the contacts after reach the
+    budget (at once if the bounds alone do), and the entries not evaluated hold their
+    bounds instead of 0 (so each entry is still at most its cost).
     """
     K = P.shape[0]
     b = budget[i]
     s = 0.0
+    after = 0.0  # the bounds of the contacts after the current one
     for k in range(K):
         out[i, k] = 0.0
+    if use_lower:
+        for k in range(K):
+            after += lower[i, k]
+        if after >= b:
+            for k in range(K):
+                out[i, k] = lower[i, k]
+            return False
     for k in range(K):
+        if use_lower:
+            after -= lower[i, k]
+            if after < 0.0:
+                after = 0.0
         # object frame: R^T (p - t) and R^T n
         dx = P[k, 0] - poses[i, 0, 3]
         dy = P[k, 1] - poses[i, 1, 3]
@@ -756,39 +773,42 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shap
             nx = poses[i, 0, 0] * N[k, 0] + poses[i, 1, 0] * N[k, 1] + poses[i, 2, 0] * N[k, 2]
             ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
             nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
-        rem = b - s
+        rem = b - s - after
         # a capped pair never needs its search beyond the cap, and never ends the row
         c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
                        w if use_n else 0.0, use_n, min(rem, cap))
         out[i, k] = c
         if c >= rem:
+            if use_lower:
+                for j in range(k + 1, K):
+                    out[i, j] = lower[i, j]
             return False
         s += c
     return True
 
 
 @nb.njit(parallel=True, **_NB)
-def _pose_costs(mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-                plo, phi, nlo, nhi, left, right, start, count):
+def _pose_costs(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
+                ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in nb.prange(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids,
-                            adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
+                            base, offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
 
 @nb.njit(**_SERIAL)
-def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids, adj_off,
-                       adj, plo, phi, nlo, nhi, left, right, start, count):
+def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base,
+                       offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     for i in range(n):
-        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, tri, nrm, lo, h, shape, base, offsets, ids,
-                            adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+        done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
+                            base, offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
     return out, done
 
 
@@ -806,7 +826,7 @@ def _no_grid():
 
 
 def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None = None, budget=None,
-               cap: float = np.inf):
+               cap: float = np.inf, lower=None):
     """Joint costs (m^2, as :func:`query_joint`) of world contacts seen from each pose.
 
     Parameters
@@ -825,13 +845,17 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
         Per pose: stop evaluating its contacts once their sum reaches this (m^2).
     cap : float
         Each pair's cost is at most this (m^2): beyond it a contact is an outlier.
+    lower : (n, K) float, optional
+        Lower bounds of the costs (m^2; :func:`touchloc.models._bounds.lower_costs`): a
+        pose stops once its costs so far plus the bounds of its other contacts reach its
+        budget, and its pairs not evaluated hold their bounds.
 
     Returns
     -------
     costs : (n, K) float
         Per-pair costs; a pose stopped by its budget has its evaluated pairs (the last
-        one capped at what remained) and zeros after, so its row sums to at least its
-        budget.
+        one capped at what remained) and zeros after (their bounds, with ``lower``), so its
+        row sums to at least its budget.
     done : (n,) bool
         False for the poses stopped by their budget.
     """
@@ -852,8 +876,10 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     items = n * len(P)
     which = POSE_COSTS_THREADS.pick(items)
     t0 = time.perf_counter()
+    use_lower = lower is not None
+    lo_arr = np.ascontiguousarray(lower, dtype=np.float64).reshape(n, len(P)) if use_lower else np.zeros((1, 1))
     out = (_pose_costs if which else _pose_costs_serial)(
-        mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), tree.tri, tree.nrm, *g,
+        mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), lo_arr, use_lower, tree.tri, tree.nrm, *g,
         tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
     POSE_COSTS_THREADS.record(which, items, time.perf_counter() - t0)
     return out

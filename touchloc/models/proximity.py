@@ -8,6 +8,7 @@ from .._cache import cached_structure
 from .._util import as_poses
 from .._validate import as_count, as_nonnegative_float, as_points, as_positive_float
 from ..errors import ValidationError
+from . import _bounds
 from . import _kernels as K
 from .base import MeasurementModel, check_temperature
 from .contacts import Contacts
@@ -164,6 +165,31 @@ class ProximityModel(MeasurementModel):
             self.obj._cache[key] = grid
         return grid
 
+    def _bound(self, w: float):
+        """The table of lower bounds of the joint cost for weight ``w`` (built once per
+        mesh and weight, kept on disk; see :mod:`touchloc.models._bounds`)."""
+        key = ("cost_bound", w)
+        bound = self.obj._cache.get(key)
+        if bound is None:
+            tree = self.obj.bvh(w)
+            lo, hi = self.obj.bounds
+            bound = cached_structure(
+                "cost_bound", self.obj, dict(w=w, cells=_bounds.CELLS_PER_EXTENT, margin=_bounds.MARGIN,
+                                             bins=_bounds.BINS, tree_order=tree.face_id),
+                lambda: _bounds.build_cost_bound(tree, lo, hi, w), _bounds.CostBound, code=(K, _bounds))
+            self.obj._cache[key] = bound
+        return bound
+
+    def _lower_costs(self, poses, contacts):
+        """(N, K) lower bounds of :meth:`contact_costs` (d_M^2, capped like it) of trusted
+        poses, from the table (:mod:`touchloc.models._bounds`): a lookup per pair."""
+        use_n = contacts.normals is not None and self.sigma_nor is not None
+        w = self._weight(use_n)
+        s2 = self.sigma_pos**2
+        lower = _bounds.lower_costs(self._bound(w), poses, contacts.points, contacts.normals if use_n else None,
+                                    cap=self.cost_cap * s2)
+        return lower / s2
+
     def query_costs(self, points, normals=None, *, method: str | None = None) -> np.ndarray:
         """d_M^2 of object-frame measurements (M,) for the object at the identity pose.
 
@@ -215,14 +241,17 @@ class ProximityModel(MeasurementModel):
             return c.reshape(len(poses), len(contacts))
         return self._budget_costs(poses, contacts, method)[0]
 
-    def _budget_costs(self, poses, contacts, method=None, budget=None):
+    def _budget_costs(self, poses, contacts, method=None, budget=None, lower=None):
         """d_M^2 per pose and contact (N, K) in one compiled pass (the contacts are moved
         into each pose's frame inside it), and which poses were evaluated completely.
 
         ``budget`` (N,) in d_M^2: a pose stops once the sum of its costs reaches its
         budget; its row then sums to at least the budget (the pairs after the one that
         reached it are 0) and its ``done`` entry is False. Every completed row is what
-        :meth:`contact_costs` returns with the same method.
+        :meth:`contact_costs` returns with the same method. ``lower`` (N, K), lower bounds
+        of the costs (:meth:`_lower_costs`): a pose stops as soon as its costs so far plus
+        the bounds of its other contacts reach its budget, and its pairs not evaluated hold
+        their bounds.
         """
         method = method or self.method
         use_n = contacts.normals is not None and self.sigma_nor is not None
@@ -235,7 +264,7 @@ class ProximityModel(MeasurementModel):
         grid = self._grid(w) if method == "fast" else None
         c, done = K.pose_costs(self.obj.bvh(w), poses, contacts.points, contacts.normals if use_n else None, w,
                                grid=grid, budget=None if budget is None else np.asarray(budget) * s2,
-                               cap=self.cost_cap * s2)
+                               cap=self.cost_cap * s2, lower=None if lower is None else np.asarray(lower) * s2)
         return c / s2, done
 
     def log_likelihood(self, poses, contacts: Contacts = None, temperature: float = 1.0) -> np.ndarray:
