@@ -31,31 +31,10 @@ SETTINGS = (("learned from 1 (the default)", 1.0, 0.05), ("held at the right val
 
 
 def _run(args):
-    mesh, seed, scale, sd = args
-    import contextlib
-    import io
-    import warnings
-
-    warnings.simplefilter("ignore")
     sys.path.insert(0, str(HERE))
-    from _common import quiet_load
-    from scipy.spatial.transform import Rotation
+    from study_inhand_scale import inhand_run
 
-    from touchloc.mapping import MovingWorld, TactileSLAM, explore
-
-    obj = quiet_load(mesh)
-    lo, hi = obj.bounds
-    noise = (0.001, np.deg2rad(5.0))
-    world = MovingWorld(obj, rng=seed, noise_pos=noise[0], noise_nor=noise[1], push=(0.0005, np.deg2rad(0.5)),
-                        inhand=True, step=np.deg2rad(15.0), bias=0.05)
-    slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
-                       motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
-                       learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
-    with contextlib.redirect_stderr(io.StringIO()):
-        run = explore(world, (lo - 0.06, hi + 0.06), 96, slam=slam, fingers=3, rng=seed)
-    ang = np.array([float(np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()))
-                    for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
-    turns = [float(np.median(ang[i * 24:(i + 1) * 24])) for i in range(4)]
+    _, world, _, run, ang, turns = inhand_run(*args)
     per = len(run.results) // len(ang)
     first = None
     for i in range(len(ang)):
@@ -70,12 +49,7 @@ def _run(args):
         if first is not None:
             break
     e_h = float(ang[first]) if first is not None else float("nan")
-    return dict(seed=seed, first=first, e_first=e_h, turn1=turns[0], turn4=turns[3], growth=turns[3] - turns[0])
-
-
-def _seeds(text: str) -> list[int]:
-    a, _, b = text.partition("-")
-    return list(range(int(a), int(b) + 1)) if b else [int(s) for s in text.split(",")]
+    return dict(seed=args[1], first=first, e_first=e_h, turn1=turns[0], turn4=turns[3], growth=turns[3] - turns[0])
 
 
 def main(argv=None) -> int:
@@ -83,6 +57,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="15-34", help="a range a-b or a comma list (default 15-34)")
     ap.add_argument("--mesh", default="mug")
     args = ap.parse_args(argv)
+    sys.path.insert(0, str(HERE))
+    from study_inhand_scale import _seeds
+
     seeds = _seeds(args.seeds)
     rows = []
     with ProcessPoolExecutor(2) as ex:

@@ -34,9 +34,9 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
             ("held at 0.952, the right value", 1 / 1.05, 0.0))
 
 
-def _run(args) -> tuple[float, float]:
-    """(growth of the turn's error from the first turn to the fourth, deg; F@5mm)."""
-    mesh, seed, scale, sd = args
+def inhand_run(mesh, seed, scale, sd):
+    """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
+    error per action in degrees, median error per turn of 24 actions)."""
     import contextlib
     import io
     import warnings
@@ -46,7 +46,7 @@ def _run(args) -> tuple[float, float]:
     from _common import quiet_load
     from scipy.spatial.transform import Rotation
 
-    from touchloc.mapping import MovingWorld, TactileSLAM, explore, fscore
+    from touchloc.mapping import MovingWorld, TactileSLAM, explore
 
     obj = quiet_load(mesh)
     lo, hi = obj.bounds
@@ -58,9 +58,17 @@ def _run(args) -> tuple[float, float]:
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
     with contextlib.redirect_stderr(io.StringIO()):
         run = explore(world, (lo - 0.06, hi + 0.06), 96, slam=slam, fingers=3, rng=seed)
-    ang = [float(np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()))
-           for a, b in zip(slam.trajectory[1:], world.trajectory[1:])]
+    ang = np.array([float(np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()))
+                    for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
     turns = [float(np.median(ang[i * 24:(i + 1) * 24])) for i in range(4)]
+    return obj, world, slam, run, ang, turns
+
+
+def _run(args) -> tuple[float, float]:
+    """(growth of the turn's error from the first turn to the fourth, deg; F@5mm)."""
+    from touchloc.mapping import fscore
+
+    obj, _, _, run, _, turns = inhand_run(*args)
     return turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000))
 
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from .._cache import numba_cache_enabled
 from .._util import progress
+from ._kernels import PARALLEL_MIN, object_frame, query_joint
 
 __all__ = ["CostBound", "build_cost_bound", "lower_costs"]
 
@@ -121,17 +122,7 @@ def _bound_one(px, py, pz, nx, ny, nz, use_n, lo, h, inv_h, shape, root, dirs, b
 @nb.njit(inline="always", **_NB)
 def _bound_row(i, poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, out):
     for k in range(P.shape[0]):
-        dx = P[k, 0] - poses[i, 0, 3]
-        dy = P[k, 1] - poses[i, 1, 3]
-        dz = P[k, 2] - poses[i, 2, 3]
-        px = poses[i, 0, 0] * dx + poses[i, 1, 0] * dy + poses[i, 2, 0] * dz
-        py = poses[i, 0, 1] * dx + poses[i, 1, 1] * dy + poses[i, 2, 1] * dz
-        pz = poses[i, 0, 2] * dx + poses[i, 1, 2] * dy + poses[i, 2, 2] * dz
-        nx = ny = nz = 0.0
-        if use_n:
-            nx = poses[i, 0, 0] * N[k, 0] + poses[i, 1, 0] * N[k, 1] + poses[i, 2, 0] * N[k, 2]
-            ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
-            nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
+        px, py, pz, nx, ny, nz = object_frame(poses, i, P, N, k, use_n)
         out[i, k] = min(_bound_one(px, py, pz, nx, ny, nz, use_n, lo, h, 1.0 / h, shape, root, dirs, box_lo, box_hi,
                                    w, b), cap)
 
@@ -155,8 +146,6 @@ def _lower_costs_serial(poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_l
 def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf) -> np.ndarray:
     """(n, K) lower bounds (m^2, each at most ``cap``) of the joint costs of world contacts
     ``P`` (K, 3), ``N`` (K, 3) or None, seen from each pose (n, 4, 4; trusted)."""
-    from ._kernels import PARALLEL_MIN
-
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
     use_n = N is not None and bound.w > 0
@@ -168,8 +157,6 @@ def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf) -> np.nda
 
 def build_cost_bound(tree, box_lo, box_hi, w: float) -> CostBound:
     """The table for a mesh (its exact-query tree ``tree`` and bounding box) and weight ``w``."""
-    from ._kernels import query_joint
-
     box_lo, box_hi = np.asarray(box_lo, dtype=np.float64), np.asarray(box_hi, dtype=np.float64)
     ext = float(np.max(box_hi - box_lo))
     h = ext / CELLS_PER_EXTENT

@@ -730,6 +730,24 @@ def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
 
 
 @nb.njit(inline="always", **_NB)
+def object_frame(poses, i, P, N, k, use_n):
+    """Contact k (world point P[k], normal N[k]) in the frame of pose i: R^T (p - t) and
+    R^T n (the normal zero when ``use_n`` is False)."""
+    dx = P[k, 0] - poses[i, 0, 3]
+    dy = P[k, 1] - poses[i, 1, 3]
+    dz = P[k, 2] - poses[i, 2, 3]
+    px = poses[i, 0, 0] * dx + poses[i, 1, 0] * dy + poses[i, 2, 0] * dz
+    py = poses[i, 0, 1] * dx + poses[i, 1, 1] * dy + poses[i, 2, 1] * dz
+    pz = poses[i, 0, 2] * dx + poses[i, 1, 2] * dy + poses[i, 2, 2] * dz
+    nx = ny = nz = 0.0
+    if use_n:
+        nx = poses[i, 0, 0] * N[k, 0] + poses[i, 1, 0] * N[k, 1] + poses[i, 2, 0] * N[k, 2]
+        ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
+        nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
+    return px, py, pz, nx, ny, nz
+
+
+@nb.njit(inline="always", **_NB)
 def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
               ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out):
     """Costs of pose i for every contact, each at most ``cap``, in order, until they reach
@@ -761,18 +779,7 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
             after -= lower[i, k]
             if after < 0.0:
                 after = 0.0
-        # object frame: R^T (p - t) and R^T n
-        dx = P[k, 0] - poses[i, 0, 3]
-        dy = P[k, 1] - poses[i, 1, 3]
-        dz = P[k, 2] - poses[i, 2, 3]
-        px = poses[i, 0, 0] * dx + poses[i, 1, 0] * dy + poses[i, 2, 0] * dz
-        py = poses[i, 0, 1] * dx + poses[i, 1, 1] * dy + poses[i, 2, 1] * dz
-        pz = poses[i, 0, 2] * dx + poses[i, 1, 2] * dy + poses[i, 2, 2] * dz
-        nx = ny = nz = 0.0
-        if use_n:
-            nx = poses[i, 0, 0] * N[k, 0] + poses[i, 1, 0] * N[k, 1] + poses[i, 2, 0] * N[k, 2]
-            ny = poses[i, 0, 1] * N[k, 0] + poses[i, 1, 1] * N[k, 1] + poses[i, 2, 1] * N[k, 2]
-            nz = poses[i, 0, 2] * N[k, 0] + poses[i, 1, 2] * N[k, 1] + poses[i, 2, 2] * N[k, 2]
+        px, py, pz, nx, ny, nz = object_frame(poses, i, P, N, k, use_n)
         rem = b - s - after
         # a capped pair never needs its search beyond the cap, and never ends the row
         c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
