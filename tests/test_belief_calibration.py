@@ -126,6 +126,32 @@ def test_temper_reaches_the_target_posterior():
     assert np.allclose(l_new, new(out))
 
 
+def test_temper_with_an_early_stopping_likelihood_makes_the_same_moves():
+    """``new_above`` (the value where it exceeds the move's threshold, -inf where it does
+    not) gives the tempering of ``new`` exactly, and is asked only about proposals."""
+    reg = PoseRegion.box((0, 0, 0), (0.01, 0, 0), rotation=np.eye(3)).with_rho(0.05)
+    P = reg.sample(1000, rng=3)
+
+    def new(Q):
+        return -0.5 * ((Q[:, 0, 3] - 0.003) / 0.0005) ** 2
+
+    asked, below = [], []
+
+    def new_above(Q, t):
+        v = new(Q)
+        asked.append(len(Q))
+        below.append(np.mean(v <= t))
+        return np.where(v > t, v, -np.inf)
+
+    a = temper(P, np.zeros(1000), np.zeros(1000), new(P), None, new, reg, moves=3, max_stages=20, rng=5)
+    b = temper(P, np.zeros(1000), np.zeros(1000), new(P), None, new, reg, moves=3, max_stages=20, rng=5,
+               new_above=new_above)
+    for x, y in zip(a[:3], b[:3]):
+        np.testing.assert_array_equal(x, y)
+    assert a[3] == b[3] and a[4] == b[4]
+    assert asked and 0.1 < np.mean(below) < 0.95  # most proposals are rejected, and are told so early
+
+
 def test_smc_filter_still_sequential(box):
     """Two updates of 15 contacts reach the same posterior as one update of 30."""
     reg = PoseRegion.box((0, 0, 0), (0.01, 0, 0), rotation=np.eye(3)).with_rho(box.radius)

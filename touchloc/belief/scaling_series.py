@@ -378,16 +378,27 @@ class ScalingSeries:
         P = X[idx]
 
         model = self.posterior_model or self.model
+        new_above = None
         if _plain_proximity(model):
             # the moves' proposals are this estimator's own rigid poses: no re-validation
             def new(Q):
                 return finite_loglik(-0.5 * model._contact_costs(Q, contacts).sum(axis=1))
+
+            def new_above(Q, t):
+                # log-likelihood -cost / 2 above t: a cost below -2 t, so a pose stops once its
+                # costs reach that, and is then sure to be rejected (-inf)
+                cost, done = model._budget_costs(Q, contacts, None, budget=np.clip(-2.0 * t, 0.0, np.inf))
+                out = np.full(len(Q), -np.inf)
+                if done.any():
+                    out[done] = finite_loglik(-0.5 * cost[done].sum(axis=1))
+                return out
         else:
             def new(Q):
                 return finite_loglik(model.log_likelihood(Q, contacts))
         l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
         P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
-                                              moves=self.final_moves, max_stages=self.final_stages, rng=self.rng)
+                                              moves=self.final_moves, max_stages=self.final_stages, rng=self.rng,
+                                              new_above=new_above)
         if sym is not None:
             # the moves wander along the symmetry, where the likelihood is flat: back to the
             # representatives (the same surfaces, so the same likelihoods)

@@ -261,7 +261,7 @@ def _scale(P, log_w, region) -> float:
 
 def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_fraction: float = 0.5,
            max_stages: int = 60, jumps: float = 2.0, max_moves: int | None = None, target_accept: float = 0.3,
-           info: dict | None = None, rng=None):
+           info: dict | None = None, rng=None, new_above=None):
     """Resample-move SMC from ``prior x exp(old)`` to ``prior x exp(old + new)``.
 
     The power of the new term rises from 0 to 1 in steps that keep the effective sample
@@ -307,6 +307,12 @@ def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_
         ``E_{prior x exp(old)}[exp(new)]`` (the product over steps of the mean incremental
         weight), with which posteriors of separate runs on the same data can be pooled.
     rng : None, int or Generator
+    new_above : callable, optional
+        ``new_above(P, t) -> (M,)``: ``new(P)`` where it exceeds ``t`` (M,), and ``-inf``
+        where it is sure not to (a likelihood that can stop early). A move is accepted only
+        if its proposal's ``new`` exceeds the threshold that the move's uniform draw sets,
+        so with it each proposal is evaluated only until it is sure to be rejected; the
+        moves, and the result, are those of ``new`` (up to rounding at the threshold).
 
     Returns
     -------
@@ -318,6 +324,8 @@ def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_
         Fraction of accepted moves, per move.
     """
     rng = as_rng(rng)
+    if new_above is not None and not callable(new_above):
+        raise ValidationError(f"new_above must be a callable or None, got {type(new_above).__name__}")
     # checked once here: the moves below make rigid poses from rigid poses
     P = as_poses(poses, "poses")
     n = len(P)
@@ -358,12 +366,20 @@ def temper(poses, log_w, l_old, l_new, old, new, region, *, moves: int = 3, ess_
             inside = region._contains(Q)
             lq_old = np.zeros(n)
             lq_new = np.full(n, -np.inf)
+            log_u = np.log(rng.random(n))  # drawn before the proposals are scored, which draw nothing
             if inside.any():
                 if old is not None:
                     lq_old[inside] = old(Q[inside])
-                lq_new[inside] = new(Q[inside])
+                if new_above is not None and beta > 0:
+                    # accepted only if lq_new > t: below it, how far below does not matter
+                    with np.errstate(invalid="ignore"):
+                        t = (log_u - lq_old + lo_ + beta * ln_) / beta
+                    t = np.where(np.isnan(t), -np.inf, t)
+                    lq_new[inside] = new_above(Q[inside], t[inside])
+                else:
+                    lq_new[inside] = new(Q[inside])
             a = (lq_old + beta * lq_new) - (lo_ + beta * ln_)
-            ok = inside & (np.log(rng.random(n)) < a)
+            ok = inside & (log_u < a)
             P = np.where(ok[:, None, None], Q, P)
             lo_, ln_ = np.where(ok, lq_old, lo_), np.where(ok, lq_new, ln_)
             rate = float(ok.mean())
