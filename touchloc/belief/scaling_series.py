@@ -206,8 +206,10 @@ class ScalingSeries:
 
         The draws for full rotations are made and embedded as quaternions (only the kept
         ones become matrices), and the ball counts compare each draw with the neighbours
-        of its own centre only (:func:`touchloc.belief._cover.ball_counts`); the
-        distribution is that of :meth:`_even_density_cover_reference`.
+        of its own centre only (:class:`touchloc.belief._cover.BallCounter`, set up once
+        per scale). Where the particle cap binds, the draws come in batches that stop
+        once the cap can be filled (:meth:`_next_batch`). The distribution is that of
+        :meth:`_even_density_cover_reference`.
         """
         dim = region.dim
         rng = self.rng
