@@ -197,6 +197,35 @@ def test_interrupt_inside_numpys_ctypes_check_is_not_lost():
     assert dtype.itemsize == 8
 
 
+def test_an_interruption_cleared_by_the_code_it_landed_in_is_raised_again(monkeypatch):
+    # C code that calls back into Python may clear an exception at places nobody listed: a
+    # KeyboardInterrupt not acknowledged by the command within _REDELIVER_AFTER is raised again
+    monkeypatch.setattr(cli, "_REDELIVER_AFTER", 0.2)
+    intr = cli._Interrupts()
+    assert intr.install()
+    swallowed = again = 0
+    try:
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            swallowed += 1  # cleared, as such C code would
+        try:
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                time.sleep(0.01)
+        except KeyboardInterrupt:
+            again += 1
+            intr.handled()
+        # once handled, nothing more arrives
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        intr.uninstall()
+    assert (swallowed, again) == (1, 1)
+    assert intr.raised_at is None
+
+
 def test_unsafe_code_is_recognised_on_the_stack():
     import threading
 

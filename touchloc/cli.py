@@ -104,7 +104,11 @@ def run() -> None:
     atexit.register(_ignore_interrupts)  # registered first, so it runs after every other atexit callback
     try:
         status = _main(None, intr)
-    except KeyboardInterrupt:  # only in the few bytecodes between the command's return and here
+    except KeyboardInterrupt:
+        # in the few bytecodes between the command's return and here, or raised again (the
+        # first one lost) before the command's own handler could acknowledge it
+        intr.handled()
+        print(f"{intr.label}: interrupted", file=sys.stderr, flush=True)
         status = EXIT_INTERRUPTED
     intr.finished = status
     sys.exit(status)
@@ -150,12 +154,14 @@ def _main(argv, intr) -> int:
         print(f"{label}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        intr.handled()
         print(f"{label}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
     except SystemError as exc:
         # Ctrl-C inside C code that calls back into Python arrives wrapped in a SystemError
         if not _caused_by_interrupt(exc):
             raise
+        intr.handled()
         print(f"{label}: interrupted", file=sys.stderr, flush=True)
         return EXIT_INTERRUPTED
 
@@ -184,6 +190,9 @@ def _caused_by_interrupt(exc) -> bool:
 #  * numpy's ``npy_ctypes_check``, which numpy's C code calls while it builds a dtype and
 #    whose exceptions it clears: an interruption there is lost (the command goes on and
 #    exits 0).
+# Elsewhere, C code that calls back into Python may clear an exception too, at places not
+# listed here. So an interruption raised is watched until the command has handled it: if it
+# has not after _REDELIVER_AFTER seconds, it was lost, and it is raised again.
 # And once the command's work is over, a Ctrl-C must not kill the process by the signal:
 # Python puts the default action back while it finalises, so a Ctrl-C then ends the
 # process with no message and status -2. The program ignores SIGINT from its last
@@ -195,6 +204,9 @@ _HOLD_CALLS = frozenset({("threading", "join"), ("threading", "_wait_for_tstate_
                          ("numpy.core._internal", "npy_ctypes_check")})
 #: seconds an interruption may wait before the command says why it has not stopped yet
 _HOLD_NOTE_AFTER = 3.0
+#: seconds after which an interruption raised but not yet handled by the command is taken as
+#: lost (cleared by C code it was raised under) and raised again
+_REDELIVER_AFTER = 1.0
 
 
 def _in_unsafe_code(frame) -> bool:
@@ -226,8 +238,10 @@ class _Interrupts:
     exception is unsafe (:func:`_in_unsafe_code`): then the interruption is held, and a
     watcher thread delivers it again (``_thread.interrupt_main``) as soon as the main
     thread has left that code. A second Ctrl-C while one is held ends the process at once
-    (status 130). After the work (``finished`` set), Ctrl-C ends the process at once with
-    the command's own status.
+    (status 130). An interruption raised is watched until the command acknowledges it
+    (:meth:`handled`); one still unhandled after ``_REDELIVER_AFTER`` seconds was cleared
+    by C code it was raised under, and is raised again. After the work (``finished``
+    set), Ctrl-C ends the process at once with the command's own status.
     """
 
     def __init__(self):
@@ -235,6 +249,7 @@ class _Interrupts:
         self.finished = None
         self.held = False
         self.redelivering = False
+        self.raised_at = None
         self._previous = None
         self._main = threading.main_thread().ident
         self._lock = threading.RLock()
@@ -247,6 +262,7 @@ class _Interrupts:
 
     def uninstall(self):
         self.held = False
+        self.raised_at = None
         if signal.getsignal(signal.SIGINT) is self:
             signal.signal(signal.SIGINT, self._previous if self._previous is not None else signal.default_int_handler)
 
@@ -269,7 +285,34 @@ class _Interrupts:
                     threading.Thread(target=self._watch, name="touchloc-interrupt", daemon=True).start()
                 return
             self.held = False
+            if self.raised_at is None:
+                threading.Thread(target=self._confirm, name="touchloc-interrupt-confirm", daemon=True).start()
+            self.raised_at = time.monotonic()
         raise KeyboardInterrupt
+
+    def handled(self):
+        """The command has caught the interruption: nothing more to deliver."""
+        with self._lock:
+            self.raised_at = None
+
+    def _confirm(self):
+        # an interruption raised but not handled within _REDELIVER_AFTER s was cleared by
+        # the C code it was raised under: raise it again (where it is safe to)
+        while True:
+            time.sleep(0.05)
+            with self._lock:
+                if self.raised_at is None or self.finished is not None:
+                    return
+                if self.held or self.redelivering or time.monotonic() - self.raised_at < _REDELIVER_AFTER:
+                    continue
+                frame = sys._current_frames().get(self._main)
+                if frame is None:
+                    return
+                unsafe = _in_unsafe_code(frame)
+                del frame
+                if not unsafe:
+                    self.raised_at = time.monotonic()
+                    _thread.interrupt_main(signal.SIGINT)
 
     def _watch(self):
         t0 = time.monotonic()
