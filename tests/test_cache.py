@@ -313,6 +313,39 @@ def test_warmup_command_builds_a_mesh_into_the_cache(tmp_path):
     assert any(p.parent.name == "candidate_grid" for p in (tmp_path / "c").rglob("*.npz"))
 
 
+def test_the_parallel_warmup_parts_cover_every_kernel_of_warm_kernels():
+    """`touchloc warmup` compiles two parts in two processes: together they must give every
+    kernel (and signature) that warm_kernels(full=True) loads, or the first command after
+    an install would still compile. Run in a fresh process, parts in-process (the kernels
+    load from numba's cache), then warm_kernels must add no signature."""
+    code = textwrap.dedent("""
+        import numba, warnings
+        warnings.simplefilter("ignore")
+        from touchloc import _warmup as W
+        from touchloc.models import _kernels as K, _bounds as B
+        from touchloc.belief import _cover as C
+        from touchloc.models import integrated as I
+
+        def signatures():
+            return {(m.__name__, n): set(d.signatures) for m in (K, B, C, I) for n, d in vars(m).items()
+                    if isinstance(d, numba.core.registry.CPUDispatcher)}
+
+        assert W.PARTS == ("serial", "parallel")
+        for part in W.PARTS:
+            W._warm_part((part, True))
+        before = signatures()
+        W.warm_kernels(full=True)
+        after = signatures()
+        new = {k: sorted(map(str, after[k] - before[k])) for k in after if after[k] - before[k]}
+        assert not new, new
+        assert sum(bool(v) for v in after.values()) >= 10
+        assert W.compile_in_processes(jobs=1) == 0  # one job: nothing to do in other processes
+        print("ok")
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr[-2000:]
+
+
 def _njit_in_module(modname):
     import numba
 
