@@ -295,6 +295,17 @@ class _Interrupts:
         with self._lock:
             self.raised_at = None
 
+    def _main_unsafe(self):
+        """Whether the main thread runs unsafe code now (:func:`_in_unsafe_code`); None when
+        it is gone."""
+        frame = sys._current_frames().get(self._main)
+        if frame is None:
+            return None
+        try:
+            return _in_unsafe_code(frame)
+        finally:
+            del frame
+
     def _confirm(self):
         # an interruption raised but not handled within _REDELIVER_AFTER s was cleared by
         # the C code it was raised under: raise it again (where it is safe to)
@@ -305,11 +316,9 @@ class _Interrupts:
                     return
                 if self.held or self.redelivering or time.monotonic() - self.raised_at < _REDELIVER_AFTER:
                     continue
-                frame = sys._current_frames().get(self._main)
-                if frame is None:
+                unsafe = self._main_unsafe()
+                if unsafe is None:
                     return
-                unsafe = _in_unsafe_code(frame)
-                del frame
                 if not unsafe:
                     self.raised_at = time.monotonic()
                     _thread.interrupt_main(signal.SIGINT)
@@ -324,11 +333,9 @@ class _Interrupts:
                     return
                 if self.redelivering:
                     continue  # the main thread has not run the handler yet (busy in compiled code)
-                frame = sys._current_frames().get(self._main)
-                if frame is None:
+                unsafe = self._main_unsafe()
+                if unsafe is None:
                     return
-                unsafe = _in_unsafe_code(frame)
-                del frame
                 if not unsafe:
                     self.redelivering = True
                     _thread.interrupt_main(signal.SIGINT)
