@@ -241,6 +241,23 @@ def test_compiled_box_and_parent_tests_match_numpy_bit_for_bit(rng):
     assert got[0] and got[1] and not got[2] and not got[3] and got[4]
 
 
+def test_compiled_quaternion_poses_are_scipys_bit_for_bit(rng):
+    from scipy.spatial.transform import Rotation
+
+    from touchloc.belief._cover import quat_poses
+
+    q = rng.normal(size=(200_000, 4))
+    q[:100_000] /= np.linalg.norm(q[:100_000], axis=1, keepdims=True)  # unit, as the draws make them
+    q[100_000:100_010] *= 1e-3                                        # and far from unit
+    t = rng.normal(size=(len(q), 3))
+    idx = rng.permutation(len(q))[:150_000]
+    got = quat_poses(q, idx, t)
+    assert got.shape == (150_000, 4, 4)
+    assert np.array_equal(got[:, :3, :3], Rotation.from_quat(q[idx]).as_matrix())
+    assert np.array_equal(got[:, :3, 3], t[idx])
+    assert np.array_equal(got[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (len(idx), 1)))
+
+
 def test_the_draws_are_the_same_on_one_thread_and_on_many(rng):
     n, free = 6000, np.arange(3, dtype=np.int64)
     g, u = rng.normal(size=(n, 6)), rng.random(n)

@@ -7,18 +7,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from .._util import as_rng, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
-from ..geometry import checked_rotations, make_poses
+from ..geometry import checked_rotations
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
-from ._cover import BallCounter, draw_full, in_box
+from ._cover import BallCounter, draw_full, in_box, quat_poses
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -625,7 +624,7 @@ class _Draws:
         """(len(idx), 4, 4) poses of the chosen candidates."""
         if self.region.rotation != "full":
             return self._poses[idx]
-        return make_poses(Rotation.from_quat(self._q[idx]).as_matrix(), self._t[idx])
+        return quat_poses(self._q, np.asarray(idx, dtype=np.int64).reshape(-1), self._t)
 
 
 def _kernel_prior(region, poses, log_w, delta):
