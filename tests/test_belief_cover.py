@@ -258,6 +258,22 @@ def test_compiled_quaternion_poses_are_scipys_bit_for_bit(rng):
     assert np.array_equal(got[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (len(idx), 1)))
 
 
+def test_compiled_matrix_quaternions_are_scipys_bit_for_bit(rng):
+    from scipy.spatial.transform import Rotation
+
+    from touchloc.belief._cover import matrix_quats
+
+    R = Rotation.random(200_000, rng).as_matrix()
+    axes = rng.normal(size=(2000, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    R[:1000] = Rotation.from_rotvec(axes[:1000] * 1e-7).as_matrix()       # near the identity
+    R[1000:2000] = Rotation.from_rotvec(axes[1000:] * np.pi).as_matrix()  # half turns
+    R[2000] = np.eye(3)
+    got = matrix_quats(R)
+    assert np.array_equal(got, Rotation.from_matrix(R, assume_valid=True).as_quat())
+    assert np.allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-15)
+
+
 def test_the_draws_are_the_same_on_one_thread_and_on_many(rng):
     n, free = 6000, np.arange(3, dtype=np.int64)
     g, u = rng.normal(size=(n, 6)), rng.random(n)

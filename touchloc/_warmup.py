@@ -224,6 +224,7 @@ def _warm_cover():
         kernel(*args)
     C.in_box(np.zeros((1, 3)), np.zeros(3), np.ones(3))
     C.quat_poses(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros(1, dtype=np.int64), np.zeros((1, 3)))
+    C.matrix_quats(np.eye(3)[None])
     C._beyond(X, A, anchor, 1.0)
 
 

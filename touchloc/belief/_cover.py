@@ -230,6 +230,42 @@ def quat_poses(q, idx, t):
 
 
 @nb.njit(**_NB)
+def matrix_quats(R):
+    """(n, 4) unit quaternions (x, y, z, w) of rotation matrices ``R`` (n, 3, 3): the same
+    arithmetic, in the same order, as scipy's ``Rotation.from_matrix(R, assume_valid=True)
+    .as_quat()`` (the largest of the diagonal and the trace picks the formula), so bit for
+    bit its quaternions, without its per-call overhead."""
+    out = np.empty((R.shape[0], 4))
+    for i in range(R.shape[0]):
+        m = R[i]
+        tr = m[0, 0] + m[1, 1] + m[2, 2]
+        c, best = 0, m[0, 0]
+        if m[1, 1] > best:
+            c, best = 1, m[1, 1]
+        if m[2, 2] > best:
+            c, best = 2, m[2, 2]
+        if tr > best:
+            c = 3
+        if c == 3:
+            out[i, 0] = m[2, 1] - m[1, 2]
+            out[i, 1] = m[0, 2] - m[2, 0]
+            out[i, 2] = m[1, 0] - m[0, 1]
+            out[i, 3] = 1 + tr
+        else:
+            a = c
+            b = (a + 1) % 3
+            k = (b + 1) % 3
+            out[i, a] = 1 - tr + 2 * m[a, a]
+            out[i, b] = m[b, a] + m[a, b]
+            out[i, k] = m[k, a] + m[a, k]
+            out[i, 3] = m[k, b] - m[b, k]
+        n = np.sqrt(out[i, 0] * out[i, 0] + out[i, 1] * out[i, 1] + out[i, 2] * out[i, 2] + out[i, 3] * out[i, 3])
+        for j in range(4):
+            out[i, j] /= n
+    return out
+
+
+@nb.njit(**_NB)
 def _beyond(X, E, parent, r2):
     """(M,) bool: squared distance from each row of X to its parent's row of E above r2
     (summed in numpy's order for rows this short, so the same test bit for bit)."""

@@ -12,12 +12,12 @@ from .._util import as_rng, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
-from ..geometry import checked_rotations
+
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
-from ._cover import BallCounter, draw_full, in_box, quat_poses
+from ._cover import BallCounter, draw_full, in_box, matrix_quats, quat_poses
 from .particles import ParticleBelief, systematic_resample
 from .region import PoseRegion
 
@@ -606,7 +606,7 @@ class _Draws:
         g = rng.normal(size=(n, d))
         u = rng.random(n)
         rho = region._rho()
-        qc = checked_rotations(centers[:, :3, :3]).as_quat()
+        qc = matrix_quats(np.ascontiguousarray(centers[:, :3, :3]))
         qc *= np.where(qc[:, 3:] < 0, -1.0, 1.0)
         # one compiled pass: the draws, their quaternions and their embedding
         t, q, emb = draw_full(g, u, qc, np.ascontiguousarray(centers[:, :3, 3]), np.asarray(pick, dtype=np.int64),
