@@ -12,7 +12,6 @@ from .._util import as_rng, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
-
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
 from ..models.symmetry import Symmetry
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
