@@ -332,7 +332,7 @@ def test_the_parallel_warmup_parts_cover_every_kernel_of_warm_kernels():
 
         assert W.PARTS == ("serial", "parallel")
         for part in W.PARTS:
-            W._warm_part((part, True))
+            W._warm_part(part, True)
         before = signatures()
         W.warm_kernels(full=True)
         after = signatures()

@@ -130,9 +130,9 @@ def _ignore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _warm_part(args) -> int:
-    """Compile one of :data:`PARTS` (in a worker process); the number of kernels compiled."""
-    part, full = args
+def _warm_part(part, full, conn=None) -> int:
+    """Compile one of :data:`PARTS` (in a worker process); the number of kernels compiled,
+    also sent on ``conn`` when given."""
     from . import _cache
 
     obj = _tetrahedron()
@@ -141,7 +141,15 @@ def _warm_part(args) -> int:
         _warm(obj, full and part == "serial", forms=(part,))
         if part == "serial":
             _warm_cover()
+    if conn is not None:
+        conn.send(cn.count)
+        conn.close()
     return cn.count
+
+
+def _warm_worker(part, full, conn):
+    _ignore_sigint()
+    _warm_part(part, full, conn)
 
 
 def compile_in_processes(*, full: bool = False, jobs: int = 2) -> int:
@@ -150,10 +158,11 @@ def compile_in_processes(*, full: bool = False, jobs: int = 2) -> int:
 
     The kernels reach the calling process through numba's disk cache, so nothing is done
     when that cache is off or ``jobs`` < 2. Each process writes a kernel's cache files
-    whole, so two that compile the same helper do no harm. A worker that fails leaves its
-    kernels to :func:`warm_kernels`, which compiles whatever is not cached. On two cores it
-    halves the first compilation (129 s to 69 s on the reference machine); with the
-    kernels already cached it costs the processes' start, a second or two.
+    whole, so two that compile the same helper do no harm. A worker that fails, dies or
+    cannot be started leaves its kernels to :func:`warm_kernels`, which compiles whatever
+    is not cached. On two cores it halves the first compilation (129 s to 69 s on the
+    reference machine); with the kernels already cached it costs the processes' start, a
+    second or two.
     """
     import multiprocessing
 
@@ -161,14 +170,31 @@ def compile_in_processes(*, full: bool = False, jobs: int = 2) -> int:
 
     if jobs < 2 or not _NB["cache"]:
         return 0
-    pool = multiprocessing.get_context("spawn").Pool(min(int(jobs), len(PARTS)), initializer=_ignore_sigint)
+    ctx = multiprocessing.get_context("spawn")
+    procs, count = [], 0
     try:
-        return int(sum(pool.map(_warm_part, [(part, full) for part in PARTS])))
-    except Exception:  # noqa: BLE001 - warm_kernels compiles whatever the workers did not
-        return 0
+        for part in PARTS:
+            recv, send = ctx.Pipe(duplex=False)
+            p = ctx.Process(target=_warm_worker, args=(part, full, send), name=f"touchloc-warmup-{part}", daemon=True)
+            p.start()
+            send.close()
+            procs.append((p, recv))
+        for p, recv in procs:
+            p.join()  # a worker that dies ends here too, without a count
+            try:
+                if recv.poll():
+                    count += int(recv.recv())
+            except (EOFError, OSError):
+                pass
+    except OSError:  # no processes here: warm_kernels compiles it all
+        pass
     finally:
-        pool.terminate()
-        pool.join()
+        for p, recv in procs:
+            if p.is_alive():
+                p.terminate()
+                p.join()
+            recv.close()
+    return count
 
 
 def _warm(obj, full, forms=PARTS):
