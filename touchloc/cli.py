@@ -191,8 +191,11 @@ def _caused_by_interrupt(exc) -> bool:
 #    whose exceptions it clears: an interruption there is lost (the command goes on and
 #    exits 0).
 # Elsewhere, C code that calls back into Python may clear an exception too, at places not
-# listed here. So an interruption raised is watched until the command has handled it: if it
-# has not after _REDELIVER_AFTER seconds, it was lost, and it is raised again.
+# listed here (ctypes callbacks report it as "ignored" and return). So an interruption raised
+# is watched: when the main thread is seen handling it (in an except or finally block for a
+# KeyboardInterrupt) or the command acknowledges it (interruption_handled), it was caught on
+# purpose; when neither has happened after _REDELIVER_AFTER seconds, it was lost, and it is
+# raised again.
 # And once the command's work is over, a Ctrl-C must not kill the process by the signal:
 # Python puts the default action back while it finalises, so a Ctrl-C then ends the
 # process with no message and status -2. The program ignores SIGINT from its last
@@ -207,6 +210,16 @@ _HOLD_NOTE_AFTER = 3.0
 #: seconds after which an interruption raised but not yet handled by the command is taken as
 #: lost (cleared by C code it was raised under) and raised again
 _REDELIVER_AFTER = 1.0
+#: the handler of the command running in this process, if any (see interruption_handled)
+_ACTIVE = None
+
+
+def interruption_handled() -> None:
+    """Tell the running command's Ctrl-C handler that the interruption was caught on purpose
+    (a subcommand that stops cleanly and carries on, or returns a status of its own), so
+    that it is not taken as lost and raised again. A no-op outside a command."""
+    if _ACTIVE is not None:
+        _ACTIVE.handled()
 
 
 def _in_unsafe_code(frame) -> bool:
@@ -238,10 +251,11 @@ class _Interrupts:
     exception is unsafe (:func:`_in_unsafe_code`): then the interruption is held, and a
     watcher thread delivers it again (``_thread.interrupt_main``) as soon as the main
     thread has left that code. A second Ctrl-C while one is held ends the process at once
-    (status 130). An interruption raised is watched until the command acknowledges it
-    (:meth:`handled`); one still unhandled after ``_REDELIVER_AFTER`` seconds was cleared
-    by C code it was raised under, and is raised again. After the work (``finished``
-    set), Ctrl-C ends the process at once with the command's own status.
+    (status 130). An interruption raised is watched until the command is seen handling it
+    or acknowledges it (:meth:`handled`); one that neither happened to within
+    ``_REDELIVER_AFTER`` seconds was cleared by C code it was raised under, and is raised
+    again. After the work (``finished`` set), Ctrl-C ends the process at once with the
+    command's own status.
     """
 
     def __init__(self):
@@ -255,14 +269,19 @@ class _Interrupts:
         self._lock = threading.RLock()
 
     def install(self) -> bool:
+        global _ACTIVE
         if threading.current_thread() is not threading.main_thread():
             return False  # signal handlers can only be set from the main thread
         self._previous = signal.signal(signal.SIGINT, self)
+        _ACTIVE = self
         return True
 
     def uninstall(self):
+        global _ACTIVE
         self.held = False
         self.raised_at = None
+        if _ACTIVE is self:
+            _ACTIVE = None
         if signal.getsignal(signal.SIGINT) is self:
             signal.signal(signal.SIGINT, self._previous if self._previous is not None else signal.default_int_handler)
 
@@ -295,6 +314,18 @@ class _Interrupts:
         with self._lock:
             self.raised_at = None
 
+    def _main_handles_interrupt(self) -> bool:
+        """Whether the main thread is inside an ``except`` or ``finally`` block for a
+        KeyboardInterrupt now: code that caught it (a sweep recording its running trials, a
+        driver stopping the hand) is dealing with it, so it was not lost."""
+        current = getattr(sys, "_current_exceptions", None)
+        if current is None:  # pragma: no cover - CPython has it
+            return True      # (then nothing is ever raised again)
+        exc = current().get(self._main)
+        if isinstance(exc, tuple):  # Python < 3.12: (type, value, traceback)
+            exc = exc[1]
+        return isinstance(exc, KeyboardInterrupt)
+
     def _main_unsafe(self):
         """Whether the main thread runs unsafe code now (:func:`_in_unsafe_code`); None when
         it is gone."""
@@ -313,6 +344,9 @@ class _Interrupts:
             time.sleep(0.05)
             with self._lock:
                 if self.raised_at is None or self.finished is not None:
+                    return
+                if self._main_handles_interrupt():
+                    self.raised_at = None  # caught by the command's own code: not lost
                     return
                 if self.held or self.redelivering or time.monotonic() - self.raised_at < _REDELIVER_AFTER:
                     continue

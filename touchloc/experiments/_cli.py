@@ -47,6 +47,9 @@ def run_sweep_cmd(args) -> int:
         rows = run_sweep(sweep, args.out, executor_spec=args.executor, workers=args.workers,
                          progress=False if args.no_progress else None, resume=not args.fresh)
     except KeyboardInterrupt:
+        from ..cli import interruption_handled
+
+        interruption_handled()
         print(f"\ninterrupted: {len(read_results(args.out))} finished trials are in {args.out}; "
               "run the same command again to resume")
         return 130

@@ -114,7 +114,9 @@ def run_emulate(args) -> int:
                     print(f"{name} emulator stopped: {srv.error}", flush=True)
                     return 1
     except KeyboardInterrupt:
-        pass
+        from ..cli import interruption_handled
+
+        interruption_handled()  # the emulators stop on Ctrl-C: that is their normal end
     finally:
         for _, srv in servers:
             srv.close()
