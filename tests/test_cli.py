@@ -197,6 +197,13 @@ def test_interrupt_inside_numpys_ctypes_check_is_not_lost():
     assert dtype.itemsize == 8
 
 
+def _idle(seconds):
+    """Run Python (where an interruption can land) for ``seconds``."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
 def test_an_interruption_cleared_by_the_code_it_landed_in_is_raised_again(monkeypatch):
     # C code that calls back into Python may clear an exception at places nobody listed (a
     # ctypes callback reports it as "ignored" and returns): a KeyboardInterrupt that the
@@ -214,16 +221,11 @@ def test_an_interruption_cleared_by_the_code_it_landed_in_is_raised_again(monkey
         callback()  # Ctrl-C inside the callback: ctypes swallows the KeyboardInterrupt
         assert ignored == [KeyboardInterrupt]
         try:
-            deadline = time.monotonic() + 30
-            while time.monotonic() < deadline:
-                time.sleep(0.01)
+            _idle(30.0)
         except KeyboardInterrupt:
             again += 1
             intr.handled()
-        # once handled, nothing more arrives
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            time.sleep(0.01)
+        _idle(1.0)  # once handled, nothing more arrives
     finally:
         intr.uninstall()
     assert again == 1
@@ -242,13 +244,10 @@ def test_an_interruption_the_command_catches_on_purpose_is_not_raised_again(monk
             signal.raise_signal(signal.SIGINT)
         except KeyboardInterrupt:
             t0 = time.monotonic()
-            while time.monotonic() - t0 < 1.5:  # more than _REDELIVER_AFTER, inside the handler
-                time.sleep(0.01)
+            _idle(1.5)  # more than _REDELIVER_AFTER, inside the handler
             worked = time.monotonic() - t0
         cli.interruption_handled()
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            time.sleep(0.01)
+        _idle(1.0)
     finally:
         intr.uninstall()
     assert worked >= 1.5
