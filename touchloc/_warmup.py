@@ -96,7 +96,7 @@ def _tetrahedron():
 
 
 #: the two halves of the kernels that :func:`warm_kernels` may compile in parallel processes
-#: (their compile times are about equal: 55-65 s each on one core of the reference machine)
+#: (their compile times are about equal: 54 and 67 s on one core each of the reference machine)
 PARTS = ("serial", "parallel")
 
 
