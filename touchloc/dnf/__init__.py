@@ -17,7 +17,7 @@ _NAMES = {
     "estimators": ("HistogramEstimator", "count_surfaces", "normalize_max", "surface_peaks"),
     "fields": ("Field1D", "Field2D", "FieldParams", "MemoryTrace", "circular_convolve", "diagonal_sum", "expand",
         "lateral_kernel", "sigmoid"),
-    "tracker": ("OrientationTracker", "TrackerParams", "population_code"),
+    "tracker": ("OrientationTracker", "TrackerParams", "contact_spreads", "population_code"),
     "particle": ("ParticleOrientationEstimator",),
     "compare": ("EstimatorRun", "compare", "default_estimators", "orientation_error", "run_estimator",
         "summary_table"),
@@ -25,7 +25,7 @@ _NAMES = {
 
 __all__ = [
     "OrientationTracker", "TrackerParams", "count_surfaces", "surface_peaks", "HistogramEstimator",
-    "normalize_max", "population_code", "ParticleOrientationEstimator",
+    "normalize_max", "population_code", "contact_spreads", "ParticleOrientationEstimator",
     "compare", "run_estimator", "default_estimators", "orientation_error", "summary_table", "EstimatorRun",
     "Field1D", "Field2D", "FieldParams", "MemoryTrace", "sigmoid", "lateral_kernel", "circular_convolve",
     "expand", "diagonal_sum",

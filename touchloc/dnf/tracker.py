@@ -73,8 +73,10 @@ time constants are in samples.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
+from scipy.special import gammaincinv
 
 from .._validate import as_bool, as_count, as_float, as_instance
 from ..errors import ValidationError
@@ -158,6 +160,76 @@ def population_code(angles, n_sites: int, width: float, gain: float, *, normaliz
     return gain * np.exp((cosd - 1.0) / width**2).sum(axis=0)
 
 
+
+#: memory height at which a side counts as remembered (seed 000's read-out threshold)
+REMEMBERED = 0.4
+
+
+@lru_cache(maxsize=256)
+def _sd_median(n: int) -> float:
+    """Median of the sample standard deviation of ``n`` unit Gaussian values:
+    ``sqrt(median(chi2(n - 1)) / (n - 1))``."""
+    k = n - 1
+    return float(np.sqrt(2.0 * gammaincinv(0.5 * k, 0.5) / k))
+
+
+def contact_spreads(angles, gap: float = np.radians(20.0)) -> np.ndarray:
+    """Angular spread of each contact's normals within one sample.
+
+    The normals, sorted by angle, are split into contacts wherever two neighbours are more
+    than ``gap`` apart. For each contact with two normals or more, the sample standard
+    deviation of its angles divided by that statistic's median for Gaussian normals of
+    unit spread: an estimate of the normals' standard deviation whose median does not
+    depend on how many normals the contact gave. The tracker's spread normalisation
+    (``TrackerParams.noise_ref``) takes the median of these over the contacts that landed
+    on remembered sides.
+
+    Parameters
+    ----------
+    angles : (K,) float
+        Normal angles of one sample, rad; any number, including none.
+    gap : float
+        Largest angle between neighbouring normals of one contact, rad (in ``(0, pi)``).
+
+    Returns
+    -------
+    (C,) float
+        One spread per contact with two normals or more, rad (empty if none).
+    """
+    a = as_angles(angles, "angles", allow_empty=True)
+    gap = as_float(gap, "gap (rad)", low=1e-9, high=np.pi)
+    return _contact_spreads(a, gap)
+
+
+def _contact_spreads(a: np.ndarray, gap: float, with_means: bool = False):
+    n = a.size
+    if n < 2:
+        return (np.empty(0), np.empty(0)) if with_means else np.empty(0)
+    s = np.sort(np.mod(a, TWO_PI))
+    d = np.diff(s)
+    wrap = s[0] + TWO_PI - s[-1]
+    cuts = np.flatnonzero(d > gap)
+    if wrap <= gap and cuts.size:
+        # the contact across 0 rad: start the sequence after the last cut
+        start = int(cuts[-1]) + 1
+        s = np.concatenate([s[start:], s[:start] + TWO_PI])
+        cuts = np.flatnonzero(np.diff(s) > gap)
+    bounds = np.concatenate([[0], cuts + 1, [n]])
+    sizes = np.diff(bounds)
+    keep = sizes >= 2
+    if not keep.any():
+        return (np.empty(0), np.empty(0)) if with_means else np.empty(0)
+    x = s - s[0]
+    sums = np.add.reduceat(x, bounds[:-1])
+    sq = np.add.reduceat(x * x, bounds[:-1])
+    m = sizes[keep]
+    var = np.maximum(sq[keep] - sums[keep] ** 2 / m, 0.0) / (m - 1)
+    spread = np.sqrt(var) / np.array([_sd_median(int(k)) for k in m])
+    if with_means:
+        return spread, s[0] + sums[keep] / m
+    return spread
+
+
 @dataclass(frozen=True)
 class TrackerParams:
     """Parameters of :class:`OrientationTracker`; the defaults reproduce seed 000's behaviour.
@@ -176,6 +248,24 @@ class TrackerParams:
     #: blob normals with 3-6 deg of scatter still reach threshold
     tuning_width: float = np.radians(5.0)
     input_gain: float = 16.0
+    #: spread normalisation of the input (an addition to seed 000): the tracker estimates
+    #: the angular spread of one contact's normals within a sample (:func:`contact_spreads`;
+    #: the median over the last ``noise_window`` contacts with two normals or more that
+    #: landed on a remembered side) and, where it exceeds ``noise_ref``, raises
+    #: ``input_gain`` by ``sqrt(w^2 + s^2) / sqrt(w^2 + noise_ref^2)`` (w: ``tuning_width``;
+    #: the inverse of the expected peak of the mean code of normals spread by ``s``) and
+    #: lowers ``correction_gain`` by ``(noise_ref / s)^2`` (an inverse-variance weight of
+    #: the read-out). ``noise_ref`` is the spread the other parameters were set at (what
+    #: the estimate reads on the robustness sweep's base cell: 3 deg of noise on the curved
+    #: pad). Spreads at or below it leave the defaults, and so do one normal per contact
+    #: and the first ``noise_min`` contacts. Only remembered sides count, since an edge's
+    #: or a round object's normals spread for reasons other than the sensor's noise.
+    #: ``noise_ref = 0`` turns it off
+    noise_ref: float = np.radians(4.8)
+    noise_window: float = 600.0
+    noise_min: float = 10.0
+    #: normals of one sample closer than this (sorted by angle) belong to one contact
+    contact_gap: float = np.radians(20.0)
     #: time constant of the optional evidence window, samples (leaky average of the codes;
     #: 0: the current sample only)
     input_window: float = 0.0
@@ -317,6 +407,14 @@ class OrientationTracker:
             raise ValidationError(f"rate_prior must be > 0 rad with rate_mode='mean', got {p.rate_prior!r}")
         if not (np.isfinite(p.input_window) and p.input_window >= 0):
             raise ValidationError(f"input_window must be >= 0 samples (0: no window), got {p.input_window!r}")
+        if not (0.0 <= p.noise_ref <= np.pi):
+            raise ValidationError(f"noise_ref must be in [0, pi] rad (0: no spread normalisation), got {p.noise_ref!r}")
+        if not (1.0 <= p.noise_window <= 1e6):
+            raise ValidationError(f"noise_window must be 1 to 1e6 contacts, got {p.noise_window!r}")
+        if not (0.0 <= p.noise_min <= p.noise_window):
+            raise ValidationError(f"noise_min must be 0 to noise_window contacts, got {p.noise_min!r}")
+        if not (0.0 < p.contact_gap < np.pi):
+            raise ValidationError(f"contact_gap must be in (0, pi) rad, got {p.contact_gap!r}")
         self.params = p
         n = self.n_sites = int(p.n_sites)
         self.angles = site_angles(n)
@@ -344,6 +442,11 @@ class OrientationTracker:
         self._rate = self._rate0()
         self._last_odo = None
         self._first_odo = None
+        self._spreads = np.empty(int(round(p.noise_window)))
+        self._n_spreads = 0
+        self._gain_scale = 1.0
+        self._correction_scale = 1.0
+        self._noise = float(p.noise_ref)
 
     def _rate0(self) -> float:
         """The rate before any read-out: the prior's mean (``rate_mode="mean"`` with
@@ -364,6 +467,12 @@ class OrientationTracker:
         return self._rate
 
     @property
+    def noise(self) -> float:
+        """Estimated spread of one contact's normals within a sample, rad (see
+        ``TrackerParams.noise_ref``); ``noise_ref`` until enough contacts were seen."""
+        return self._noise
+
+    @property
     def memory(self) -> np.ndarray:
         """Memory trace over object-frame orientation, (n_sites,) in [0, 1]."""
         return self.trace.P
@@ -378,6 +487,10 @@ class OrientationTracker:
         self._rate = self._rate0()
         self._last_odo = None
         self._first_odo = None
+        self._n_spreads = 0
+        self._gain_scale = 1.0
+        self._correction_scale = 1.0
+        self._noise = float(self.params.noise_ref)
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -425,7 +538,9 @@ class OrientationTracker:
             self._evidence += population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0,
                                               normalize=True)
             self._weight += 1.0
-        stim = (p.input_gain / max(self._weight, 1.0)) * self._evidence
+        if p.noise_ref > 0 and a.size >= 2:
+            self._observe_spread(a)
+        stim = (p.input_gain * self._gain_scale / max(self._weight, 1.0)) * self._evidence
         # mapping pathway
         f_s = self.surface.step(stim)
         P = self.trace.P
@@ -463,7 +578,7 @@ class OrientationTracker:
                 z = np.sum(w * np.exp(1j * self._dev))
                 err = float(np.angle(z))
                 self.last_error = err
-                self.correction -= p.correction_gain * err
+                self.correction -= p.correction_gain * self._correction_scale * err
                 if p.rate_mode == "mean":
                     D = self.odometry - self._first_odo
                     self._rate = min(max((self.correction * D + p.rate_prior_mean * p.rate_prior ** 2)
@@ -473,6 +588,32 @@ class OrientationTracker:
             else:
                 self.last_error = 0.0
         self.n_steps += 1
+
+    def _observe_spread(self, a: np.ndarray) -> None:
+        """Add this sample's contact spreads to the window and re-scale the gains."""
+        p = self.params
+        sp, mu = _contact_spreads(a, p.contact_gap, with_means=True)
+        if sp.size == 0:
+            return
+        # only contacts on a remembered side: an edge's or a round object's normals spread
+        # for reasons other than the sensor's noise
+        site = np.round((mu - self.orientation) * self.n_sites / TWO_PI).astype(np.int64) % self.n_sites
+        sp = sp[self.trace.P[site] >= REMEMBERED]
+        if sp.size == 0:
+            return
+        buf = self._spreads
+        m = buf.size
+        for v in sp[-m:]:
+            buf[self._n_spreads % m] = v
+            self._n_spreads += 1
+        n = min(self._n_spreads, m)
+        if n < p.noise_min:
+            return
+        s = max(float(np.median(buf[:n])), 1e-3 * p.noise_ref)
+        w2 = p.tuning_width ** 2
+        self._noise = s
+        self._gain_scale = max(1.0, float(np.sqrt((w2 + s * s) / (w2 + p.noise_ref ** 2))))
+        self._correction_scale = min(1.0, (p.noise_ref / s) ** 2)
 
     def _diagonal(self) -> np.ndarray:
         """Diagonal read-out of the comparison output: ``out[d] = sum_x F[x, x + d]``.
