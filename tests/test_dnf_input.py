@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from touchloc.dnf import (SEED_FAITHFUL, HistogramEstimator, count_surfaces, OrientationTracker, ParticleOrientationEstimator,
-                          generate_rotation_dataset, population_code, save_recording, load_recording)
+                          generate_rotation_dataset, population_code, run_estimator, save_recording, load_recording)
 from touchloc.errors import ValidationError
 
 DEG = np.pi / 180
@@ -150,3 +150,70 @@ def test_csv_round_trip_keeps_samples_without_contact(tmp_path):
     assert len(back) == len(ds)
     np.testing.assert_array_equal(back.sample_index, ds.sample_index)
     np.testing.assert_allclose(back.normal_angles, ds.normal_angles, atol=1e-12)
+
+
+# -- spread normalisation ----------------------------------------------------------------
+def test_contact_spreads_estimate_the_normals_spread_whatever_their_number():
+    from touchloc.dnf import contact_spreads
+
+    rng = np.random.default_rng(5)
+    sigma = 4 * DEG
+    for k in (2, 3, 10, 40):
+        # three contacts a sample, one of them across 0 rad
+        est = np.concatenate([contact_spreads(np.concatenate([rng.normal(c, sigma, k) for c in (0.0, 2.0, 4.0)]))
+                              for _ in range(600)])
+        assert est.size == 3 * 600           # one spread per contact, none split or merged
+        assert np.median(est) == pytest.approx(sigma, rel=0.04)
+    # the contact across 0 rad is one contact
+    np.testing.assert_allclose(contact_spreads([-0.01, 0.01]), [0.02 / np.sqrt(2) / 0.6744897501960817], rtol=1e-9)
+    # single normals and empty samples give no spread
+    assert contact_spreads([0.1, 2.0, 4.0]).size == 0 and contact_spreads([]).size == 0
+    with pytest.raises(ValidationError, match="gap"):
+        contact_spreads([0.1, 0.2], gap=4.0)
+
+
+def _six_degree_sets(n, count):
+    return [generate_rotation_dataset(n, rng=np.random.default_rng([21, n, i]), normals_per_contact=2,
+                                      noise=6 * DEG, drop=0.1, normal_source="pad") for i in range(count)]
+
+
+def test_tracker_estimates_the_spread_on_remembered_sides_and_scales_its_gains():
+    ds = _six_degree_sets(6, 1)[0]
+    tr = OrientationTracker()
+    tr.run(ds)
+    # the generator's normals: 6 deg of noise on 1 mm / 2 cm of centroid error (2.9 deg)
+    truth = np.hypot(6.0, np.degrees(0.001 / 0.02)) * DEG
+    assert tr.noise == pytest.approx(truth, rel=0.15)
+    w, ref = tr.params.tuning_width, tr.params.noise_ref
+    assert tr._gain_scale == pytest.approx(np.sqrt((w**2 + tr.noise**2) / (w**2 + ref**2)))
+    assert tr._correction_scale == pytest.approx((ref / tr.noise) ** 2) and tr._correction_scale < 1
+    off = OrientationTracker(noise_ref=0.0)
+    off.run(ds)
+    assert off.noise == 0.0 and off._gain_scale == 1.0 and off._correction_scale == 1.0
+    # below the reference spread the defaults stay
+    quiet = OrientationTracker()
+    quiet.run(generate_rotation_dataset(6, rng=1, normals_per_contact=2, noise=1 * DEG, normal_source="pad"))
+    assert quiet.noise < ref and quiet._gain_scale == 1.0 and quiet._correction_scale == 1.0
+
+
+def test_spread_normalisation_counts_the_sides_under_6_degrees_of_noise():
+    """Four data sets each of the 6- and 8-gon with 6 deg of noise (seeds not used to set any
+    parameter). Without the normalisation the memory misses sides; with it the right count
+    rose by 0.29 on average over these sets (0.57 -> 0.85) when this test was written. The
+    test asks for half of that."""
+    on, off = [], []
+    for n in (6, 8):
+        for ds in _six_degree_sets(n, 4):
+            on.append(run_estimator("on", OrientationTracker, ds).accuracy)
+            off.append(run_estimator("off", lambda: OrientationTracker(noise_ref=0.0), ds).accuracy)
+    assert np.mean(on) >= np.mean(off) + 0.15
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(noise_ref=-0.1), "noise_ref"), (dict(noise_ref=np.nan), "noise_ref"),
+    (dict(noise_window=0.5), "noise_window"), (dict(noise_min=1e7), "noise_min"),
+    (dict(contact_gap=0.0), "contact_gap"), (dict(contact_gap=np.inf), "contact_gap"),
+])
+def test_spread_normalisation_parameters_are_checked(bad, match):
+    with pytest.raises(ValidationError, match=match):
+        OrientationTracker(**bad)

@@ -72,6 +72,8 @@ time constants are in samples.
 
 from __future__ import annotations
 
+from bisect import bisect_left, insort
+from collections import deque
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -198,36 +200,36 @@ def contact_spreads(angles, gap: float = np.radians(20.0)) -> np.ndarray:
     """
     a = as_angles(angles, "angles", allow_empty=True)
     gap = as_float(gap, "gap (rad)", low=1e-9, high=np.pi)
-    return _contact_spreads(a, gap)
+    return np.array(_contact_spreads(a, gap)[0], dtype=float)
 
 
-def _contact_spreads(a: np.ndarray, gap: float, with_means: bool = False):
-    n = a.size
-    if n < 2:
-        return (np.empty(0), np.empty(0)) if with_means else np.empty(0)
-    s = np.sort(np.mod(a, TWO_PI))
-    d = np.diff(s)
-    wrap = s[0] + TWO_PI - s[-1]
-    cuts = np.flatnonzero(d > gap)
-    if wrap <= gap and cuts.size:
-        # the contact across 0 rad: start the sequence after the last cut
-        start = int(cuts[-1]) + 1
-        s = np.concatenate([s[start:], s[:start] + TWO_PI])
-        cuts = np.flatnonzero(np.diff(s) > gap)
-    bounds = np.concatenate([[0], cuts + 1, [n]])
-    sizes = np.diff(bounds)
-    keep = sizes >= 2
-    if not keep.any():
-        return (np.empty(0), np.empty(0)) if with_means else np.empty(0)
-    x = s - s[0]
-    sums = np.add.reduceat(x, bounds[:-1])
-    sq = np.add.reduceat(x * x, bounds[:-1])
-    m = sizes[keep]
-    var = np.maximum(sq[keep] - sums[keep] ** 2 / m, 0.0) / (m - 1)
-    spread = np.sqrt(var) / np.array([_sd_median(int(k)) for k in m])
-    if with_means:
-        return spread, s[0] + sums[keep] / m
-    return spread
+def _contact_spreads(a: np.ndarray, gap: float) -> tuple[list, list]:
+    """``contact_spreads`` and each contact's mean angle, as lists."""
+    # plain Python over the sorted angles: a sample holds a few to a hundred normals, where
+    # numpy's per-call overhead would dominate
+    s = np.sort(np.mod(a, TWO_PI)).tolist()
+    n = len(s)
+    spreads, means = [], []
+    if n >= 2:
+        # start after the widest gap, so that no contact is cut at 0 rad
+        gaps = [s[i + 1] - s[i] for i in range(n - 1)] + [s[0] + TWO_PI - s[-1]]
+        if max(gaps) > gap:
+            start = (max(range(n), key=gaps.__getitem__) + 1) % n
+            s = s[start:] + [v + TWO_PI for v in s[:start]]
+        group = [s[0]]
+        for v in s[1:] + [None]:
+            if v is not None and v - group[-1] <= gap:
+                group.append(v)
+                continue
+            m = len(group)
+            if m >= 2:
+                mu = sum(group) / m
+                var = sum((g - mu) ** 2 for g in group) / (m - 1)
+                spreads.append(var ** 0.5 / _sd_median(m))
+                means.append(mu)
+            if v is not None:
+                group = [v]
+    return spreads, means
 
 
 @dataclass(frozen=True)
@@ -442,8 +444,9 @@ class OrientationTracker:
         self._rate = self._rate0()
         self._last_odo = None
         self._first_odo = None
-        self._spreads = np.empty(int(round(p.noise_window)))
-        self._n_spreads = 0
+        # the window of spreads, in arrival order and sorted (for the median)
+        self._spread_fifo = deque(maxlen=int(round(p.noise_window)))
+        self._spread_ranked = []
         self._gain_scale = 1.0
         self._correction_scale = 1.0
         self._noise = float(p.noise_ref)
@@ -487,7 +490,8 @@ class OrientationTracker:
         self._rate = self._rate0()
         self._last_odo = None
         self._first_odo = None
-        self._n_spreads = 0
+        self._spread_fifo.clear()
+        self._spread_ranked.clear()
         self._gain_scale = 1.0
         self._correction_scale = 1.0
         self._noise = float(self.params.noise_ref)
@@ -592,24 +596,22 @@ class OrientationTracker:
     def _observe_spread(self, a: np.ndarray) -> None:
         """Add this sample's contact spreads to the window and re-scale the gains."""
         p = self.params
-        sp, mu = _contact_spreads(a, p.contact_gap, with_means=True)
-        if sp.size == 0:
-            return
+        sp, mu = _contact_spreads(a, p.contact_gap)
         # only contacts on a remembered side: an edge's or a round object's normals spread
         # for reasons other than the sensor's noise
-        site = np.round((mu - self.orientation) * self.n_sites / TWO_PI).astype(np.int64) % self.n_sites
-        sp = sp[self.trace.P[site] >= REMEMBERED]
-        if sp.size == 0:
-            return
-        buf = self._spreads
-        m = buf.size
-        for v in sp[-m:]:
-            buf[self._n_spreads % m] = v
-            self._n_spreads += 1
-        n = min(self._n_spreads, m)
+        P, n_sites, o = self.trace.P, self.n_sites, self.orientation
+        fifo, ranked = self._spread_fifo, self._spread_ranked
+        for v, m in zip(sp, mu):
+            if P[int(round((m - o) * n_sites / TWO_PI)) % n_sites] < REMEMBERED:
+                continue
+            if len(fifo) == fifo.maxlen:
+                del ranked[bisect_left(ranked, fifo[0])]
+            fifo.append(v)
+            insort(ranked, v)
+        n = len(ranked)
         if n < p.noise_min:
             return
-        s = max(float(np.median(buf[:n])), 1e-3 * p.noise_ref)
+        s = max(0.5 * (ranked[(n - 1) // 2] + ranked[n // 2]), 1e-3 * p.noise_ref)
         w2 = p.tuning_width ** 2
         self._noise = s
         self._gain_scale = max(1.0, float(np.sqrt((w2 + s * s) / (w2 + p.noise_ref ** 2))))
