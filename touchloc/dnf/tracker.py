@@ -19,6 +19,12 @@ evidence window (optional, ``input_window > 0``)
     them (0-68 % right counts on the 8-gon with windows of 4-8 samples, against 88-100 %
     without, with 1-40 normals per finger and 1-6 degrees of noise).
 
+spread normalisation (on by default, ``noise_ref``)
+    the mean code's bump is lower the more a contact's normals spread, so the tracker
+    estimates that spread on the sides it remembers (:func:`contact_spreads`) and, where it
+    exceeds the spread the defaults were set at, raises the input gain to restore the
+    bump's expected height and lowers the correction gain (an inverse-variance weight).
+
 A sample without contact (``K = 0``) is valid. By default (``hold_empty``) it changes no
 field: the orientation follows the odometry and everything else waits for the next
 contact. No contact is no evidence, and since the fields live in the object frame, the
