@@ -217,3 +217,14 @@ def test_spread_normalisation_counts_the_sides_under_6_degrees_of_noise():
 def test_spread_normalisation_parameters_are_checked(bad, match):
     with pytest.raises(ValidationError, match=match):
         OrientationTracker(**bad)
+
+
+def test_spread_normalisation_from_the_first_remembered_contact():
+    # noise_min=0: the first contact on a remembered side already sets the gains; before
+    # any, the defaults hold (and nothing fails on an empty window)
+    tr = OrientationTracker(noise_min=0.0)
+    tr.step([0.10, 0.16, 3.2, 3.3], 0.0)
+    assert tr.noise == tr.params.noise_ref and tr._gain_scale == 1.0
+    tr.trace.P[:] = 1.0                     # every side remembered
+    tr.step([0.10, 0.40, 3.2, 3.5], 0.0)    # two contacts, each read as a spread of about 18 deg
+    assert tr.noise > tr.params.noise_ref and tr._gain_scale > 1.0 and tr._correction_scale < 1.0

@@ -168,7 +168,6 @@ def population_code(angles, n_sites: int, width: float, gain: float, *, normaliz
     return gain * np.exp((cosd - 1.0) / width**2).sum(axis=0)
 
 
-
 #: memory height at which a side counts as remembered (seed 000's read-out threshold)
 REMEMBERED = 0.4
 
@@ -615,7 +614,7 @@ class OrientationTracker:
             fifo.append(v)
             insort(ranked, v)
         n = len(ranked)
-        if n < p.noise_min:
+        if n == 0 or n < p.noise_min:
             return
         s = max(0.5 * (ranked[(n - 1) // 2] + ranked[n // 2]), 1e-3 * p.noise_ref)
         w2 = p.tuning_width ** 2
