@@ -171,3 +171,16 @@ def test_the_smc_filter_runs_as_a_static_estimator_in_a_sweep():
     a, b = run_trial(p), run_trial(p)
     assert a["estimator"] == "smc" and a["touches"] == 10 and np.isfinite(a["add_s"])
     assert {k: v for k, v in a.items() if k not in TIME_COLUMNS} == {k: v for k, v in b.items() if k not in TIME_COLUMNS}
+
+
+def test_warm_builds_every_per_mesh_structure_a_timed_trial_would_need():
+    """A worker's warm-up must leave nothing for its first timed trial to build: the
+    exact tree, the fast grid and Scaling Series' bound table for the model's normal
+    weight (the first 30-contact trial of each mesh used to time the grid's building)."""
+    from touchloc.experiments.trial import _model, warm
+
+    warm([("cereal", 0.002, 0.1)])
+    model = _model({"mesh": "cereal", "sigma_pos": 0.002, "sigma_nor": 0.1})
+    w = model._weight(True)
+    assert {("grid", w, model.grid_cell, model.grid_margin, model.grid_normals), ("cost_bound", w)} \
+        <= set(model.obj._cache)

@@ -309,6 +309,7 @@ def warm(keys) -> dict:
     dict
         :func:`cache_info` afterwards.
     """
+    from .._warmup import prepare_models
     from ..models import Contacts
 
     for mesh, sp, sn in keys:
@@ -318,7 +319,10 @@ def warm(keys) -> dict:
         pts, nrm, _ = obj.sample_surface(5, rng=0)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            model.log_likelihood(np.eye(4)[None], Contacts(pts, nrm))  # loads grids and compiled kernels
+            model.log_likelihood(np.eye(4)[None], Contacts(pts, nrm))  # loads the tree and compiled kernels
+            # the fast grid and Scaling Series' bound table too: a small call like the one
+            # above never needs them, and the first trial that did would time their building
+            prepare_models(model, build=True)
     return cache_info()
 
 
