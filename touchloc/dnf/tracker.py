@@ -262,9 +262,9 @@ class TrackerParams:
     #: ``input_gain`` by ``sqrt(w^2 + s^2) / sqrt(w^2 + noise_ref^2)`` (w: ``tuning_width``;
     #: the inverse of the expected peak of the mean code of normals spread by ``s``) and
     #: lowers ``correction_gain`` by ``(noise_ref / s)^2`` (an inverse-variance weight of
-    #: the read-out). ``noise_ref`` is the spread the other parameters were set at (what
-    #: the estimate reads on the robustness sweep's base cell: 3 deg of noise on the curved
-    #: pad). Spreads at or below it leave the defaults, and so do one normal per contact
+    #: the read-out). ``noise_ref`` stands for the spread the other parameters were set at
+    #: (the robustness sweep's base cell: 3 deg of noise on the curved pad, where the
+    #: estimate reads 3.8-5.2 deg). Spreads at or below it leave the defaults, and so do one normal per contact
     #: and the first ``noise_min`` contacts. Only remembered sides count, since an edge's
     #: or a round object's normals spread for reasons other than the sensor's noise.
     #: ``noise_ref = 0`` turns it off
