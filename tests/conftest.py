@@ -1,8 +1,10 @@
 import atexit
+import importlib.util
 import os
 import shutil
 import tempfile
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,3 +32,21 @@ def objects():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.fixture
+def example():
+    """``example(name)``: the script ``examples/<name>.py`` loaded as a module (the test is
+    skipped where examples/ is not present, as in an installed package's tests)."""
+    def load(name):
+        path = EXAMPLES / f"{name}.py"
+        if not path.exists():
+            pytest.skip("examples/ not present")
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+    return load

@@ -1,20 +1,11 @@
 """The DNF spread example runs end to end: the estimated spread is near the generator's and
 the normalisation counts the sides more often than the tracker without it."""
 
-import importlib.util
 import re
-from pathlib import Path
-
-import pytest
-
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "dnf_sensor_spread.py"
 
 
-@pytest.mark.skipif(not EXAMPLE.exists(), reason="examples/ not present")
-def test_example_estimates_the_spread_and_counts_better_with_it(capsys, tmp_path):
-    spec = importlib.util.spec_from_file_location("dnf_sensor_spread", EXAMPLE)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+def test_example_estimates_the_spread_and_counts_better_with_it(capsys, tmp_path, example):
+    mod = example("dnf_sensor_spread")
     png = tmp_path / "memories.png"
     assert mod.main(["--datasets", "2", "--plot", str(png)]) == 0
     out = capsys.readouterr().out
