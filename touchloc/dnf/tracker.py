@@ -208,6 +208,15 @@ def contact_spreads(angles, gap: float = np.radians(20.0)) -> np.ndarray:
     return np.array(_contact_spreads(a, gap)[0], dtype=float)
 
 
+def _n_contacts(a: np.ndarray, gap: float) -> int:
+    """How many contacts the normals of one sample make (split at gaps over ``gap``)."""
+    if a.size < 2:
+        return int(a.size)
+    s = np.sort(np.mod(a, TWO_PI))
+    cuts = int(np.count_nonzero(np.diff(s) > gap)) + int(s[0] + TWO_PI - s[-1] > gap)
+    return max(cuts, 1)
+
+
 def _contact_spreads(a: np.ndarray, gap: float) -> tuple[list, list]:
     """``contact_spreads`` and each contact's mean angle, as lists."""
     # plain Python over the sorted angles: a sample holds a few to a hundred normals, where
@@ -271,6 +280,12 @@ class TrackerParams:
     noise_ref: float = np.radians(4.8)
     noise_window: float = 600.0
     noise_min: float = 10.0
+    #: the read-out's weight by the normals per contact (an addition to seed 000): a side
+    #: detected from fewer normals a contact than this (the sweep's base cell has two) is
+    #: located less precisely, and a sample's correction is scaled by its mean count of
+    #: normals per contact over ``normals_ref`` (capped at 1; the variance of a mean falls
+    #: with the count). 0 turns it off
+    normals_ref: float = 2.0
     #: normals of one sample closer than this (sorted by angle) belong to one contact
     contact_gap: float = np.radians(20.0)
     #: time constant of the optional evidence window, samples (leaky average of the codes;
@@ -420,6 +435,8 @@ class OrientationTracker:
             raise ValidationError(f"noise_window must be 1 to 1e6 contacts, got {p.noise_window!r}")
         if not (0.0 <= p.noise_min <= p.noise_window):
             raise ValidationError(f"noise_min must be 0 to noise_window contacts, got {p.noise_min!r}")
+        if not (0.0 <= p.normals_ref <= 1e6):
+            raise ValidationError(f"normals_ref must be 0 to 1e6 normals per contact (0: off), got {p.normals_ref!r}")
         if not (0.0 < p.contact_gap < np.pi):
             raise ValidationError(f"contact_gap must be in (0, pi) rad, got {p.contact_gap!r}")
         self.params = p
@@ -587,7 +604,7 @@ class OrientationTracker:
                 z = np.sum(w * np.exp(1j * self._dev))
                 err = float(np.angle(z))
                 self.last_error = err
-                self.correction -= p.correction_gain * self._correction_scale * err
+                self.correction -= p.correction_gain * self._correction_scale * self._count_weight(a) * err
                 if p.rate_mode == "mean":
                     D = self.odometry - self._first_odo
                     self._rate = min(max((self.correction * D + p.rate_prior_mean * p.rate_prior ** 2)
@@ -597,6 +614,13 @@ class OrientationTracker:
             else:
                 self.last_error = 0.0
         self.n_steps += 1
+
+    def _count_weight(self, a: np.ndarray) -> float:
+        """The read-out's weight by this sample's normals per contact (``normals_ref``)."""
+        ref = self.params.normals_ref
+        if ref <= 0 or a.size == 0:
+            return 1.0
+        return min(1.0, a.size / _n_contacts(a, self.params.contact_gap) / ref)
 
     def _observe_spread(self, a: np.ndarray) -> None:
         """Add this sample's contact spreads to the window and re-scale the gains."""
