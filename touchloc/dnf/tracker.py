@@ -23,7 +23,9 @@ spread normalisation (on by default, ``noise_ref``)
     the mean code's bump is lower the more a contact's normals spread, so the tracker
     estimates that spread on the sides it remembers (:func:`contact_spreads`) and, where it
     exceeds the spread the defaults were set at, raises the input gain to restore the
-    bump's expected height and lowers the correction gain (an inverse-variance weight).
+    bump's expected height and lowers the correction gain (an inverse-variance weight);
+    a sample with fewer normals per contact than two (``normals_ref``) is corrected by
+    less, for the same reason.
 
 A sample without contact (``K = 0``) is valid. By default (``hold_empty``) it changes no
 field: the orientation follows the odometry and everything else waits for the next
