@@ -232,16 +232,23 @@ def test_spread_normalisation_from_the_first_remembered_contact():
 
 
 def test_the_correction_is_weighted_by_the_normals_per_contact():
-    from touchloc.dnf.tracker import _n_contacts
+    from touchloc.dnf.tracker import _contacts
+
+    def n_contacts(a):
+        return _contacts(np.array(a), 20 * DEG)[2]
 
     # contacts are split at gaps over contact_gap, also across 0 rad
-    assert _n_contacts(np.array([0.1, 0.12, 3.2, 3.25]), 20 * DEG) == 2
-    assert _n_contacts(np.array([-0.05, 0.05, 3.2]), 20 * DEG) == 2
-    assert _n_contacts(np.array([1.0]), 20 * DEG) == 1 and _n_contacts(np.array([]), 20 * DEG) == 0
+    assert n_contacts([0.1, 0.12, 3.2, 3.25]) == 2 and n_contacts([-0.05, 0.05, 3.2]) == 2
+    assert n_contacts([0.1, 1.0, 2.0, 3.0]) == 4 and n_contacts(np.linspace(0.0, 0.01, 40)) == 1
+    assert n_contacts([1.0]) == 1 and n_contacts([]) == 0
+
+    def weight(tr, a):
+        return tr._count_weight(len(a), n_contacts(a))
+
     tr = OrientationTracker()
-    one, two, forty = np.array([0.1, 3.2]), np.array([0.1, 0.11, 3.2, 3.21]), np.linspace(0.0, 0.01, 40)
-    assert tr._count_weight(one) == 0.5 and tr._count_weight(two) == 1.0 and tr._count_weight(forty) == 1.0
-    assert OrientationTracker(normals_ref=0.0)._count_weight(one) == 1.0
+    one, two, forty = [0.1, 3.2], [0.1, 0.11, 3.2, 3.21], np.linspace(0.0, 0.01, 40)
+    assert weight(tr, one) == 0.5 and weight(tr, two) == 1.0 and weight(tr, forty) == 1.0
+    assert weight(OrientationTracker(normals_ref=0.0), one) == 1.0
 
 
 def test_one_normal_per_finger_tracks_better_with_the_count_weight():

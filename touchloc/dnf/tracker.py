@@ -207,25 +207,17 @@ def contact_spreads(angles, gap: float = np.radians(20.0)) -> np.ndarray:
     """
     a = as_angles(angles, "angles", allow_empty=True)
     gap = as_float(gap, "gap (rad)", low=1e-9, high=np.pi)
-    return np.array(_contact_spreads(a, gap)[0], dtype=float)
+    return np.array(_contacts(a, gap)[0], dtype=float)
 
 
-def _n_contacts(a: np.ndarray, gap: float) -> int:
-    """How many contacts the normals of one sample make (split at gaps over ``gap``)."""
-    if a.size < 2:
-        return int(a.size)
-    s = np.sort(np.mod(a, TWO_PI))
-    cuts = int(np.count_nonzero(np.diff(s) > gap)) + int(s[0] + TWO_PI - s[-1] > gap)
-    return max(cuts, 1)
-
-
-def _contact_spreads(a: np.ndarray, gap: float) -> tuple[list, list]:
-    """``contact_spreads`` and each contact's mean angle, as lists."""
+def _contacts(a: np.ndarray, gap: float) -> tuple[list, list, int]:
+    """One sample's contacts: ``contact_spreads`` and those contacts' mean angles, as lists,
+    and how many contacts the normals make in all (single normals included)."""
     # plain Python over the sorted angles: a sample holds a few to a hundred normals, where
     # numpy's per-call overhead would dominate
     s = np.sort(np.mod(a, TWO_PI)).tolist()
     n = len(s)
-    spreads, means = [], []
+    spreads, means, count = [], [], min(n, 1)
     if n >= 2:
         # start after the widest gap, so that no contact is cut at 0 rad
         gaps = [s[i + 1] - s[i] for i in range(n - 1)] + [s[0] + TWO_PI - s[-1]]
@@ -238,6 +230,7 @@ def _contact_spreads(a: np.ndarray, gap: float) -> tuple[list, list]:
                 group.append(v)
                 continue
             m = len(group)
+            count += v is not None
             if m >= 2:
                 mu = sum(group) / m
                 var = sum((g - mu) ** 2 for g in group) / (m - 1)
@@ -245,7 +238,7 @@ def _contact_spreads(a: np.ndarray, gap: float) -> tuple[list, list]:
                 means.append(mu)
             if v is not None:
                 group = [v]
-    return spreads, means
+    return spreads, means, count
 
 
 @dataclass(frozen=True)
@@ -566,8 +559,11 @@ class OrientationTracker:
             self._evidence += population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0,
                                               normalize=True)
             self._weight += 1.0
-        if p.noise_ref > 0 and a.size >= 2:
-            self._observe_spread(a)
+        # the sample's contacts: their spreads feed the spread normalisation, their number
+        # the read-out's count weight
+        sp, mu, n_contacts = _contacts(a, p.contact_gap) if a.size else ([], [], 0)
+        if p.noise_ref > 0 and sp:
+            self._observe_spread(sp, mu)
         stim = (p.input_gain * self._gain_scale / max(self._weight, 1.0)) * self._evidence
         # mapping pathway
         f_s = self.surface.step(stim)
@@ -606,7 +602,7 @@ class OrientationTracker:
                 z = np.sum(w * np.exp(1j * self._dev))
                 err = float(np.angle(z))
                 self.last_error = err
-                self.correction -= p.correction_gain * self._correction_scale * self._count_weight(a) * err
+                self.correction -= p.correction_gain * self._correction_scale * self._count_weight(a.size, n_contacts) * err
                 if p.rate_mode == "mean":
                     D = self.odometry - self._first_odo
                     self._rate = min(max((self.correction * D + p.rate_prior_mean * p.rate_prior ** 2)
@@ -617,17 +613,17 @@ class OrientationTracker:
                 self.last_error = 0.0
         self.n_steps += 1
 
-    def _count_weight(self, a: np.ndarray) -> float:
-        """The read-out's weight by this sample's normals per contact (``normals_ref``)."""
+    def _count_weight(self, n_normals: int, n_contacts: int) -> float:
+        """The read-out's weight by a sample's normals per contact (``normals_ref``)."""
         ref = self.params.normals_ref
-        if ref <= 0 or a.size == 0:
+        if ref <= 0 or n_contacts == 0:
             return 1.0
-        return min(1.0, a.size / _n_contacts(a, self.params.contact_gap) / ref)
+        return min(1.0, n_normals / n_contacts / ref)
 
-    def _observe_spread(self, a: np.ndarray) -> None:
-        """Add this sample's contact spreads to the window and re-scale the gains."""
+    def _observe_spread(self, sp: list, mu: list) -> None:
+        """Add this sample's contact spreads (``sp``, at mean angles ``mu``) to the window
+        and re-scale the gains."""
         p = self.params
-        sp, mu = _contact_spreads(a, p.contact_gap)
         # only contacts on a remembered side: an edge's or a round object's normals spread
         # for reasons other than the sensor's noise
         P, n_sites, o = self.trace.P, self.n_sites, self.orientation
