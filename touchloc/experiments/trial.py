@@ -310,18 +310,13 @@ def warm(keys) -> dict:
         :func:`cache_info` afterwards.
     """
     from .._warmup import prepare_models
-    from ..models import Contacts
 
     for mesh, sp, sn in keys:
-        p = {"mesh": mesh, "sigma_pos": float(sp), "sigma_nor": float(sn)}
-        obj = _object(mesh)
-        model = _model(p)
-        pts, nrm, _ = obj.sample_surface(5, rng=0)
+        model = _model({"mesh": mesh, "sigma_pos": float(sp), "sigma_nor": float(sn)})
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            model.log_likelihood(np.eye(4)[None], Contacts(pts, nrm))  # loads the tree and compiled kernels
-            # the fast grid and Scaling Series' bound table too: a small call like the one
-            # above never needs them, and the first trial that did would time their building
+            # the compiled kernels, the exact tree, the fast grid and Scaling Series' bound
+            # table: everything a trial's first likelihood call would otherwise build
             prepare_models(model, build=True)
     return cache_info()
 
