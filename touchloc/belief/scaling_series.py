@@ -384,6 +384,14 @@ class ScalingSeries:
             def new(Q):
                 return finite_loglik(-0.5 * model._contact_costs(Q, contacts).sum(axis=1))
 
+            # a cover smaller than the sample is drawn with repeats: each distinct pose is
+            # scored once, by the method a pass over the whole sample would use
+            method = model.method
+            if method == "auto":
+                method = "fast" if len(P) * len(contacts) >= AUTO_FAST_PAIRS else "exact"
+            u, back = np.unique(idx, return_inverse=True)
+            l_first = finite_loglik(-0.5 * model._contact_costs(X[u], contacts, method).sum(axis=1))[back]
+
             def new_above(Q, t):
                 # log-likelihood -cost / 2 above t: a cost below -2 t, so a pose stops once its
                 # costs reach that, and is then sure to be rejected (-inf)
@@ -395,8 +403,9 @@ class ScalingSeries:
         else:
             def new(Q):
                 return finite_loglik(model.log_likelihood(Q, contacts))
+            l_first = new(P)
         l_old = log_prior(P) if log_prior is not None else np.zeros(len(P))
-        P, l_old, l_new, stages, acc = temper(P, l_old, l_old, new(P), log_prior, new, region,
+        P, l_old, l_new, stages, acc = temper(P, l_old, l_old, l_first, log_prior, new, region,
                                               moves=self.final_moves, max_stages=self.final_stages, rng=self.rng,
                                               new_above=new_above)
         if sym is not None:

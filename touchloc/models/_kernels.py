@@ -441,16 +441,23 @@ class CandidateGrid:
     w: float  # normal weight the lists were built for (0: position-only)
     adj_off: np.ndarray  # (F+1,) CSR offsets of vertex-adjacent faces (tree order)
     adj: np.ndarray
+    longest: int  # the longest cell list (the width of a query's scratch row)
+
+    def scratch(self) -> np.ndarray:
+        """One scratch row per numba thread for the lists' bounds (see :func:`_list_best`)."""
+        return np.empty((nb.config.NUMBA_NUM_THREADS, max(self.longest, 1)))
 
 
 @nb.njit(inline="always", **_NB)
 def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py, pz, nx, ny, nz, w, descend,
-               best):
+               best, buf):
     """The best face of the point's cell list (and the greedy descent from it) below ``best``.
 
     The cell is that of the finest level whose box holds the point. Returns (listed, cost,
     face): ``listed`` is False outside every level or in a cell without a list; ``face``
-    is -1 (and ``cost`` the given ``best``) when no listed face is below it.
+    is -1 (and ``cost`` the given ``best``) when no listed face is below it. ``buf`` holds
+    at least the cell's list length: the first pass keeps each face's bound there for the
+    second.
     """
     bf = -1
     cell = -1
@@ -467,20 +474,22 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py,
     # most of the others without their closest-point routine
     lead = -1
     lead_lb = np.inf
-    for j in range(offsets[cell], offsets[cell + 1]):
+    o = offsets[cell]
+    for j in range(o, offsets[cell + 1]):
         lb = _face_lb(tri, nrm, ids[j], px, py, pz, nx, ny, nz, w)
+        buf[j - o] = lb
         if lb < lead_lb:
             lead_lb = lb
-            lead = ids[j]
+            lead = j
     if lead_lb < best:
-        c, _, _, _ = _face_cost(tri, nrm, lead, px, py, pz, nx, ny, nz, w)
+        c, _, _, _ = _face_cost(tri, nrm, ids[lead], px, py, pz, nx, ny, nz, w)
         if c < best:
             best = c
-            bf = lead
-    for j in range(offsets[cell], offsets[cell + 1]):
-        f = ids[j]
-        if f == lead or _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
+            bf = ids[lead]
+    for j in range(o, offsets[cell + 1]):
+        if j == lead or buf[j - o] >= best:
             continue
+        f = ids[j]
         c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
         if c < best:
             best = c
@@ -506,9 +515,9 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py,
 
 @nb.njit(inline="always", **_NB)
 def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-              plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend):
+              plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, buf):
     listed, best, bf = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-                                  px, py, pz, nx, ny, nz, w, descend, np.inf)
+                                  px, py, pz, nx, ny, nz, w, descend, np.inf, buf)
     if not listed:  # outside the grid, or a cell too crowded to list: exact through the tree
         best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                                      px, py, pz, nx, ny, nz, w, np.inf)
@@ -517,7 +526,7 @@ def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
 
 @nb.njit(parallel=True, **_NB)
 def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-                plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
+                plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend, buf):
     Q = P.shape[0]
     cost = np.empty(Q)
     face = np.empty(Q, np.int64)
@@ -525,15 +534,16 @@ def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
         nx = ny = nz = 0.0
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        row = buf[nb.get_thread_id()]
         cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                      plo, phi, nlo, nhi, left, right, start, count,
-                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
+                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend, row)
     return face, cost
 
 
 @nb.njit(**_SERIAL)
 def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-                       plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend):
+                       plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend, buf):
     Q = P.shape[0]
     cost = np.empty(Q)
     face = np.empty(Q, np.int64)
@@ -541,9 +551,10 @@ def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
         nx = ny = nz = 0.0
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
+        row = buf[nb.get_thread_id()]
         cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                                      plo, phi, nlo, nhi, left, right, start, count,
-                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend)
+                                     P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend, row)
     return face, cost
 
 
@@ -658,7 +669,7 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
     adj_off, adj = tree_adjacency(tree)
     return CandidateGrid(lo=np.array(los), h=np.array(hs), shape=np.array(shapes, np.int64), base=base,
                          offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
-                         w=float(w), adj_off=adj_off, adj=adj)
+                         w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0)
 
 
 def tree_adjacency(tree: BVH):
@@ -704,7 +715,7 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
     kernel = _grid_query if len(P) >= PARALLEL_MIN else _grid_query_serial
     f, c = kernel(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off,
                   grid.adj, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count,
-                  P, Nn, grid.w if use_n else 0.0, use_n, use_n)
+                  P, Nn, grid.w if use_n else 0.0, use_n, use_n, grid.scratch())
     return tree.face_id[f], c
 
 
@@ -716,12 +727,12 @@ EXACT, GRID = 0, 1
 
 @nb.njit(inline="always", **_NB)
 def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-               plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, rem):
+               plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, rem, buf):
     """min(cost, rem) of one object-frame query (rem: what the pose has left of its budget)."""
     if mode == GRID:
         # the list's own answer whatever the budget (the descent starts from its best face)
         listed, best, _ = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
-                                     px, py, pz, nx, ny, nz, w, descend, np.inf)
+                                     px, py, pz, nx, ny, nz, w, descend, np.inf, buf)
         if listed:
             return min(best, rem)
     best, _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
@@ -749,7 +760,7 @@ def object_frame(poses, i, P, N, k, use_n):
 
 @nb.njit(inline="always", **_NB)
 def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
-              ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out):
+              ids, adj_off, adj, bvh, out, buf):
     """Costs of pose i for every contact, each at most ``cap``, in order, until they reach
     the pose's budget.
 
@@ -759,8 +770,12 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
     With ``use_lower``, ``lower[i]`` holds lower bounds of the pose's costs: the pose
     stops as soon as its costs so far plus the bounds of the contacts after reach the
     budget (at once if the bounds alone do), and the entries not evaluated hold their
-    bounds instead of 0 (so each entry is still at most its cost).
+    bounds instead of 0 (so each entry is still at most its cost). ``bvh`` holds the tree's
+    arrays (plo, phi, nlo, nhi, left, right, start, count) in one tuple: CPython passes a
+    call of more than 30 arguments as ``*args``, which numba cannot inline. ``buf`` is
+    the calling thread's scratch row (:meth:`CandidateGrid.scratch`).
     """
+    plo, phi, nlo, nhi, left, right, start, count = bvh
     K = P.shape[0]
     b = budget[i]
     s = 0.0
@@ -784,7 +799,7 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
         # a capped pair never needs its search beyond the cap, and never ends the row
         c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
                        plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
-                       w if use_n else 0.0, use_n, min(rem, cap))
+                       w if use_n else 0.0, use_n, min(rem, cap), buf)
         out[i, k] = c
         if c >= rem:
             if use_lower:
@@ -797,25 +812,27 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
 
 @nb.njit(parallel=True, **_NB)
 def _pose_costs(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
-                ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count):
+                ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, buf):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
+    bvh = (plo, phi, nlo, nhi, left, right, start, count)
     for i in nb.prange(n):
         done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
-                            base, offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+                            base, offsets, ids, adj_off, adj, bvh, out, buf[nb.get_thread_id()])
     return out, done
 
 
 @nb.njit(**_SERIAL)
 def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base,
-                       offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count):
+                       offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, buf):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
+    bvh = (plo, phi, nlo, nhi, left, right, start, count)
     for i in range(n):
         done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
-                            base, offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, out)
+                            base, offsets, ids, adj_off, adj, bvh, out, buf[nb.get_thread_id()])
     return out, done
 
 
@@ -875,9 +892,11 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     if grid is None:
         mode = EXACT
         g = _no_grid()
+        buf = np.empty((nb.config.NUMBA_NUM_THREADS, 1))  # never read
     else:
         mode = GRID
         g = (grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off, grid.adj)
+        buf = grid.scratch()
     if n == 0 or len(P) == 0:
         return np.zeros((n, len(P))), np.ones(n, bool)
     items = n * len(P)
@@ -887,6 +906,6 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     lo_arr = np.ascontiguousarray(lower, dtype=np.float64).reshape(n, len(P)) if use_lower else np.zeros((1, 1))
     out = (_pose_costs if which else _pose_costs_serial)(
         mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), lo_arr, use_lower, tree.tri, tree.nrm, *g,
-        tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+        tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count, buf)
     POSE_COSTS_THREADS.record(which, items, time.perf_counter() - t0)
     return out
