@@ -170,6 +170,19 @@ def test_fast_grid_levels_are_nested_and_list_far_contacts_with_small_relative_e
     assert np.percentile(rel, 99) < 0.01 and rel.max() < 0.5
 
 
+def test_grid_scratch_rows_hold_the_longest_list_for_every_thread(objects):
+    """A query keeps its cell list's bounds in a scratch row that the compiled kernels do
+    not bounds-check: the row must hold the longest list, joint and position-only, and
+    there must be one per numba thread."""
+    import numba
+
+    model = ProximityModel(objects["mug"], 0.002, 0.1)
+    for w in (model._weight(True), model._weight(False)):
+        grid = model._grid(w)
+        assert grid.longest == int(np.diff(grid.offsets).max()) > 0
+        assert grid.scratch().shape == (numba.config.NUMBA_NUM_THREADS, grid.longest)
+
+
 def test_auto_uses_the_grid_from_its_pair_threshold_and_not_below(objects, rng):
     from touchloc.models.proximity import AUTO_FAST_PAIRS
 
