@@ -137,6 +137,37 @@ def test_tempering_ess_equals_the_log_space_formula():
     assert _ess(np.zeros(7)) == pytest.approx(7.0)
 
 
+def test_tempering_logsumexp_is_scipys_bit_for_bit():
+    """smc._logsumexp repeats scipy's arithmetic: ties at the maximum, -inf entries, every
+    entry -inf, and offsets from 1e-3 to 1e3."""
+    from scipy.special import logsumexp
+
+    from touchloc.belief.smc import _logsumexp
+
+    rng = np.random.default_rng(9)
+    for i in range(3000):
+        a = rng.normal(scale=10 ** rng.uniform(-3, 3), size=int(rng.integers(1, 400)))
+        if i % 3 == 0:
+            a[rng.random(len(a)) < 0.3] = -np.inf
+        if i % 5 == 0:
+            a[rng.integers(len(a), size=3)] = a.max()
+        if i % 7 == 0:
+            a = np.round(a)
+        assert _logsumexp(a) == float(logsumexp(a))
+    assert _logsumexp(np.full(4, -np.inf)) == -np.inf
+
+
+def test_tangent_checks_a_given_reference_and_trusts_its_own_poses(rng):
+    region = PoseRegion.box((0, 0, 0), 0.1, "full", rho=0.05)
+    b = ParticleBelief(region.sample(50, rng=rng), region=region)
+    v = b.tangent()
+    np.testing.assert_allclose(v, region.to_local(b.poses, b.mean_pose()))
+    np.testing.assert_allclose(b.tangent(b.poses[0]), region.to_local(b.poses, b.poses[0]))
+    mirror = np.diag([1.0, 1.0, -1.0, 1.0])
+    with pytest.raises(ValidationError, match="ref"):
+        b.tangent(mirror)
+
+
 def test_trusted_belief_normalises_and_checks_its_weights():
     P = np.repeat(np.eye(4)[None], 3, axis=0)
     b = ParticleBelief._trusted(P, np.array([0.0, 1.0, 2.0]))

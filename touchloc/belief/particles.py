@@ -8,7 +8,7 @@ from scipy.special import logsumexp
 
 from .._util import as_poses, as_rng
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_float_array, as_instance,
-                         as_mapping, as_positive_float, as_probability)
+                         as_mapping, as_pose, as_positive_float, as_probability)
 from ..errors import BeliefDegenerateError, ValidationError
 from ..geometry import checked_rotations
 from .region import PoseRegion
@@ -176,8 +176,9 @@ class ParticleBelief:
 
     def tangent(self, ref=None) -> np.ndarray:
         """Particles in metric coordinates around ``ref`` (default: mean pose): (N, dim)."""
-        ref = self.mean_pose() if ref is None else ref    # validated by to_local
-        return self._region().to_local(self.poses, ref)
+        # the belief's own poses were checked when it was made (or made by an estimator)
+        ref = self.mean_pose() if ref is None else as_pose(ref, "ref")
+        return self._region()._to_local(self.poses, ref)
 
     def covariance(self, ref=None) -> np.ndarray:
         """(dim, dim) weighted covariance in the tangent space at the mean.

@@ -206,8 +206,10 @@ class PoseRegion:
         Translation offsets on the free axes, then rho times the rotation offset
         (rotation vector of R R_ref^T; for yaw regions its z component).
         """
-        P = as_poses(poses)
-        ref = as_pose(ref, "ref")
+        return self._to_local(as_poses(poses), as_pose(ref, "ref"))
+
+    def _to_local(self, P, ref) -> np.ndarray:
+        """:meth:`to_local` of checked (N, 4, 4) poses and a checked (4, 4) reference."""
         dt = (P[:, :3, 3] - ref[:3, 3])[:, self.free_translation]
         if self.rotation == "fixed":
             return dt
