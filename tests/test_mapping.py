@@ -554,7 +554,12 @@ def test_map_command_in_hand_takes_a_calibrated_or_learned_odometry_scale(capsys
     for scale in ("0.952", "learn"):
         assert main(["map", "--mesh", "milk", "--touches", "4", "--moving", "inhand", "--fingers", "3",
                      "--odometry-scale", scale]) == 0
-    capsys.readouterr()
+        # and it reports the scale the run's own trajectory implies, ready to be held
+        out = capsys.readouterr().out
+        line = [ln for ln in out.splitlines() if "imply an odometry scale" in ln]
+        assert len(line) == 1
+        implied = float(line[0].rsplit("--odometry-scale ", 1)[1])
+        assert 0.8 <= implied <= 1.25
     for argv, why in ((["--moving", "inhand", "--odometry-scale", "fast"], "a number or 'learn'"),
                       (["--moving", "inhand", "--odometry-scale", "2"], "odometry_scale must be <="),
                       (["--moving", "push", "--odometry-scale", "0.95"], "needs --moving inhand")):

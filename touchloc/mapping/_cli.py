@@ -113,6 +113,12 @@ def run(args) -> int:
     if history:
         stats = f"final Chamfer {history[-1][1] * 1e3:.2f} mm, F-score@5mm {history[-1][2]:.3f}"
     print(f"\n{res.touches} touches, {res.map.n_contacts} contacts in {dt:.1f} s; {stats}")
+    if args.moving == "inhand":
+        # the scale this run's trajectory implies: on an object whose touches show the turn
+        # (a box) it is the calibration to hold for one that rarely does (a mug)
+        s, sd = slam.calibrate_odometry_scale()
+        print(f"the estimated turns imply an odometry scale of {s:.3f} +- {sd:.3f}; "
+              f"to hold it on another object: --odometry-scale {s:.3f}")
     title = f"{obj.name}: {args.method} map, {args.planner} touches" + (f"; {stats}" if stats else "")
     if args.plot:
         from .viz import plot_map

@@ -199,7 +199,8 @@ class TactileSLAM:
         self.log_w = np.full(int(n_particles), -np.log(n_particles))
         self.trajectory = [T0.copy()]
         self.info = {"dropped": 0, "ess": [], "smoothing": []}
-        # per update: its contacts (world frame), its motion model, its map batch (or None)
+        # per update: its contacts (world frame), its motion model, its map batch (or None),
+        # whether its contacts showed the turn, and the odometry as reported (or None)
         self._steps: list = []
         self._next_smooth = self.smooth_every
         self._last_odometry = None
@@ -259,6 +260,60 @@ class TactileSLAM:
             sig = self.odometry_noise if self._last_odometry is not None else self.motion
             C = self._predict_cov(C, sig, self._last_odometry)
         return 0.5 * (C[:6, :6] + C[:6, :6].T)
+
+    def calibrate_odometry_scale(self) -> tuple[float, float]:
+        """The odometry's turn scale that the whole estimated trajectory implies.
+
+        Over every update that came with an odometry, the turn the estimated trajectory
+        made about that odometry's axis, summed, over the turn the odometry reported,
+        summed. This is the value to hold on a later run with the same hand
+        (``TactileSLAM(..., learn_odometry_scale=True, odometry_scale=s,
+        odometry_scale_sd=0.0)``), and the way to bring a biased odometry to an object
+        whose turn only a small feature shows: calibrate on an object whose touches show
+        the turn at every step (a box), then hold the scale for a mug, whose turn the
+        online estimate learns too late (docs/slam.md, "Calibrating the scale on
+        another object").
+
+        Returns
+        -------
+        scale : float
+            Estimated turn over reported turn (0.952 for an odometry that reports 5 %
+            too much). It does not depend on the scale the run itself applied.
+        sd : float
+            Its standard deviation under this estimator's own noise model: the current
+            turn's variance (:meth:`pose_covariance`) plus ``odometry_noise``'s rotation
+            variance for each update with an odometry (real motion beside the commanded
+            turn), over the reported turn.
+
+        Raises
+        ------
+        ValidationError
+            If no update came with an odometry that turned.
+        """
+        turned = reported = 0.0
+        n = 0
+        axis = None
+        for k, st in enumerate(self._steps):
+            D = st.get("odometry")
+            if D is None:
+                continue
+            w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+            theta = float(np.linalg.norm(w))
+            if theta < 1e-9:
+                continue
+            axis = w / theta
+            # trajectory[0] is the initial pose; update k's pose is trajectory[k + 1]
+            A, B = self.trajectory[k], self.trajectory[k + 1]
+            turned += float(Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis)
+            reported += theta
+            n += 1
+        if n == 0:
+            raise ValidationError("calibrate_odometry_scale needs updates with an odometry that turned; "
+                                  "none of this run's did")
+        a = self.trajectory[-1][:3, :3].T @ axis   # the last turn's axis in the object frame
+        C = self.pose_covariance(predict=False)[3:, 3:]
+        var = float(a @ C @ a) + n * self.odometry_noise[1] ** 2
+        return turned / reported, float(np.sqrt(var)) / reported
 
     def _unseen_turn_covariance(self) -> np.ndarray:
         """(6, 6) the covariance, at the next update, of the turn made since the contacts last
@@ -543,10 +598,10 @@ class TactileSLAM:
         from .shape_map import _check_results
 
         results = _check_results(results)
-        D = None
+        D = raw = None
         first = not self._steps
         if odometry is not None:
-            D = _as_pose(odometry, "odometry")
+            D = raw = _as_pose(odometry, "odometry")
             if self.learn_odometry_scale or self.odometry_scale != 1.0:
                 D = _scaled_turn(D, self.odometry_scale)
             P = self.particles.copy()
@@ -620,7 +675,8 @@ class TactileSLAM:
         hits = [r.contact for r in results if r.contact is not None]
         c = Contacts.concatenate(hits) if hits else None
         self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
-                                batch=len(self.map.batches) - 1 if keep else None, turn_shown=self._turn_shown))
+                                batch=len(self.map.batches) - 1 if keep else None, turn_shown=self._turn_shown,
+                                odometry=raw))
         if self.smooth_every and len(self._steps) >= self._next_smooth:
             self.smooth()
             k = len(self._steps)
