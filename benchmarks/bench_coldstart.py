@@ -105,28 +105,37 @@ def _per_mesh(objs, cache):
     from touchloc import _cache
     from touchloc.models import MeshObject, ProximityModel
 
-    rows = []
-    for obj in objs:
-        fresh = lambda: MeshObject(obj.mesh, name=obj.name, check_units=False)  # noqa: E731
-        N = np.array([[0.0, 0.0, 1.0]])
+    # this process's cache setting is changed below and restored after: the benchmarks run
+    # after this one in the same process (and their workers) must use the usual cache
+    before = os.environ.get("TOUCHLOC_CACHE_DIR")
+    try:
+        rows = []
+        for obj in objs:
+            fresh = lambda: MeshObject(obj.mesh, name=obj.name, check_units=False)  # noqa: E731
+            N = np.array([[0.0, 0.0, 1.0]])
 
-        def setup(o):
-            t0 = time.perf_counter()
-            c0 = time.process_time()
-            m = ProximityModel(o, 0.002, 0.1)
-            m.query_costs(np.zeros((1, 3)), N, method="fast")
-            return time.perf_counter() - t0, time.process_time() - c0
+            def setup(o):
+                t0 = time.perf_counter()
+                c0 = time.process_time()
+                m = ProximityModel(o, 0.002, 0.1)
+                m.query_costs(np.zeros((1, 3)), N, method="fast")
+                return time.perf_counter() - t0, time.process_time() - c0
 
-        os.environ["TOUCHLOC_CACHE_DIR"] = "off"
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            built = setup(fresh())
-            os.environ["TOUCHLOC_CACHE_DIR"] = str(cache)
-            setup(fresh())  # writes the files
-            loaded = min((setup(fresh()) for _ in range(3)), key=lambda x: x[0])
-        size = sum(f.stat().st_size for f in Path(cache).rglob("*.npz") if _cache.mesh_hash(obj)[:16] in f.name)
-        rows.append((obj.name, obj.n_faces, f"{built[0]:.2f} ({built[1]:.2f})", f"{loaded[0]:.3f} ({loaded[1]:.3f})",
-                     f"{built[0] / loaded[0]:.0f}x", f"{size / 1e6:.1f}"))
+            os.environ["TOUCHLOC_CACHE_DIR"] = "off"
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                built = setup(fresh())
+                os.environ["TOUCHLOC_CACHE_DIR"] = str(cache)
+                setup(fresh())  # writes the files
+                loaded = min((setup(fresh()) for _ in range(3)), key=lambda x: x[0])
+            size = sum(f.stat().st_size for f in Path(cache).rglob("*.npz") if _cache.mesh_hash(obj)[:16] in f.name)
+            rows.append((obj.name, obj.n_faces, f"{built[0]:.2f} ({built[1]:.2f})", f"{loaded[0]:.3f} ({loaded[1]:.3f})",
+                         f"{built[0] / loaded[0]:.0f}x", f"{size / 1e6:.1f}"))
+    finally:
+        if before is None:
+            os.environ.pop("TOUCHLOC_CACHE_DIR", None)
+        else:
+            os.environ["TOUCHLOC_CACHE_DIR"] = before
     return rows
 
 
