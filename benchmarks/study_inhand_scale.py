@@ -91,11 +91,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="15-34", help="a range a-b or a comma list (default 15-34)")
     ap.add_argument("--mesh", default="mug")
+    ap.add_argument("--calibrate-on", default="milk", help="the mesh of the calibration runs (default milk)")
+    ap.add_argument("--settings", default="0,1,2,3", help="which rows to run, a comma list of 0-3 (default all)")
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
+    settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
+    if args.calibrate_on != "milk":
+        settings = [(label.replace("the milk carton", f"the {args.calibrate_on}"), args.calibrate_on, sd)
+                    if isinstance(scale, str) else (label, scale, sd) for label, scale, sd in settings]
     rows = []
     with ProcessPoolExecutor(2) as ex:
-        for label, scale, sd in SETTINGS:
+        for label, scale, sd in settings:
             res = list(ex.map(_run, [(args.mesh, s, scale, sd) for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
