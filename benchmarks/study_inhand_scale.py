@@ -1,21 +1,24 @@
-"""The in-hand mug with its odometry's turn scale learned, and with a known scale held.
+"""The in-hand mug with its odometry learned online, known, or calibrated on a box.
 
-    python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug]
+    python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug] [--settings 0,1,2,3,4]
+        [--calibrate-on milk]
 
 The SLAM benchmark's in-hand world (15 deg turns about z, an odometry 5 % too large, 96
-three-finger actions, 1 mm / 5 deg contacts), run four ways on each seed:
+three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
 
-- the scale learned from 1 (``learn_odometry_scale=True``, the default prior of 5 %);
-- a calibration 1 % off the right value held (``odometry_scale=0.962``,
-  ``odometry_scale_sd=0``);
-- the right value, 1 / 1.05, held;
-- the scale calibrated on a run of the milk carton in the same world and seed (scale
-  learned, as by default; ``TactileSLAM.calibrate_odometry_scale``), then held.
+0. the scale learned from 1 (``learn_odometry_scale=True``, the default prior of 5 %);
+1. a calibration 1 % off the right value held (``odometry_scale=0.962``,
+   ``odometry_scale_sd=0``);
+2. the right value, 1 / 1.05, held;
+3. the scale calibrated on a run of the milk carton (``--calibrate-on``) in the same world
+   and seed (scale learned, as by default; ``TactileSLAM.calibrate_odometry``), then held;
+4. the same with the calibration's turn noise held as well (``odometry_noise``); the other
+   rows assume the benchmark's 1.5 deg per action.
 
 Reports the growth of the orientation error from the first turn to the fourth (the
 median error within each turn of 24 actions; the benchmark's measure), how many runs stay
-within 5 and 10 degrees, and F@5mm of the final map. Two worker processes; about twelve
-minutes for the four settings and twenty seeds on two cores. Prints a Markdown table; nothing
+within 5 and 10 degrees, and F@5mm of the final map. Two worker processes; about fifteen
+minutes for the five settings and twenty seeds on two cores. Prints a Markdown table; nothing
 is written to docs/ (docs/benchmarks.md, "In-hand mug", and docs/slam.md, "What a known scale
 is worth", quote it).
 """
@@ -30,16 +33,21 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+#: the odometry's turn noise the estimator assumes unless calibrated (the SLAM benchmark's)
+TURN_NOISE = float(np.deg2rad(1.5))
 
-SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05),
-            ("held at 0.962, 1 % off the right value", 0.962, 0.0),
-            ("held at 0.952, the right value", 1 / 1.05, 0.0),
-            # a scale string: calibrated on that mesh's run of the same seed, then held
-            ("calibrated on the milk carton's run of the same seed (`calibrate_odometry_scale`), then held",
-             "milk", 0.0))
+#: (label, scale, its prior sd, odometry turn noise in rad). A scale given as a mesh's name is
+#: calibrated on that mesh's run of the same world and seed, then held; so is a turn noise
+#: given as "calibrated"
+SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05, TURN_NOISE),
+            ("held at 0.962, 1 % off the right value", 0.962, 0.0, TURN_NOISE),
+            ("held at 0.952, the right value", 1 / 1.05, 0.0, TURN_NOISE),
+            ("scale calibrated on the milk carton's run of the same seed, then held", "milk", 0.0, TURN_NOISE),
+            ("scale and turn noise calibrated on the milk carton's run of the same seed, then held", "milk", 0.0,
+             "calibrated"))
 
 
-def inhand_run(mesh, seed, scale, sd):
+def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions)."""
     import contextlib
@@ -59,7 +67,7 @@ def inhand_run(mesh, seed, scale, sd):
     world = MovingWorld(obj, rng=seed, noise_pos=noise[0], noise_nor=noise[1], push=(0.0005, np.deg2rad(0.5)),
                         inhand=True, step=np.deg2rad(15.0), bias=0.05)
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
-                       motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
+                       motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
     with contextlib.redirect_stderr(io.StringIO()):
         run = explore(world, (lo - 0.06, hi + 0.06), 96, slam=slam, fingers=3, rng=seed)
@@ -69,17 +77,20 @@ def inhand_run(mesh, seed, scale, sd):
     return obj, world, slam, run, ang, turns
 
 
-def _run(args) -> tuple[float, float, float]:
+def _run(args) -> tuple[float, float, float, float]:
     """(growth of the turn's error from the first turn to the fourth, deg; F@5mm; the
-    scale held or started from)."""
+    scale held or started from; the turn noise assumed, rad)."""
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd = args
+    mesh, seed, scale, sd, noise = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
-        scale = inhand_run(scale, seed, 1.0, 0.05)[2].calibrate_odometry_scale()[0]
-    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd)
-    return turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale)
+        cal = inhand_run(scale, seed, 1.0, 0.05)[2].calibrate_odometry()
+        scale = cal.scale
+        if noise == "calibrated":
+            noise = cal.turn_noise
+    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise)
+    return turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise)
 
 
 def _seeds(text: str) -> list[int]:
@@ -92,17 +103,17 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="15-34", help="a range a-b or a comma list (default 15-34)")
     ap.add_argument("--mesh", default="mug")
     ap.add_argument("--calibrate-on", default="milk", help="the mesh of the calibration runs (default milk)")
-    ap.add_argument("--settings", default="0,1,2,3", help="which rows to run, a comma list of 0-3 (default all)")
+    ap.add_argument("--settings", default="0,1,2,3,4", help="which rows to run, a comma list of 0-4 (default all)")
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
     if args.calibrate_on != "milk":
-        settings = [(label.replace("the milk carton", f"the {args.calibrate_on}"), args.calibrate_on, sd)
-                    if isinstance(scale, str) else (label, scale, sd) for label, scale, sd in settings]
+        settings = [(label.replace("the milk carton", f"the {args.calibrate_on}"), args.calibrate_on, sd, noise)
+                    if isinstance(scale, str) else (label, scale, sd, noise) for label, scale, sd, noise in settings]
     rows = []
     with ProcessPoolExecutor(2) as ex:
-        for label, scale, sd in settings:
-            res = list(ex.map(_run, [(args.mesh, s, scale, sd) for s in seeds]))
+        for label, scale, sd, noise in settings:
+            res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise) for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
             rows.append(f"| {label} | {np.median(g):+.1f} | {np.sum(np.abs(g) <= 5)} / {np.sum(np.abs(g) <= 10)} "
@@ -111,8 +122,10 @@ def main(argv=None) -> int:
             print(f"{label}: growth per seed {' / '.join(f'{v:+.1f}' for v in g)}", file=sys.stderr, flush=True)
             if isinstance(scale, str):
                 c = np.array([r[2] for r in res])
+                t = np.degrees([r[3] for r in res])
                 print(f"{label}: calibrated scales {np.median(c):.4f} ({c.min():.4f}-{c.max():.4f}), "
-                      f"per seed {' / '.join(f'{v:.4f}' for v in c)}", file=sys.stderr, flush=True)
+                      f"per seed {' / '.join(f'{v:.4f}' for v in c)}; turn noise (deg) {np.median(t):.2f} "
+                      f"({t.min():.2f}-{t.max():.2f})", file=sys.stderr, flush=True)
     print(f"{args.mesh}, seeds {args.seeds}\n")
     print("| scale | median growth (deg) | runs within 5 / 10 deg | 75th percentile / worst (deg) | F@5mm, median (range) |")
     print("|---|---|---|---|---|")

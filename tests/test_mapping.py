@@ -558,11 +558,13 @@ def test_map_command_in_hand_takes_a_calibrated_or_learned_odometry_scale(capsys
         out = capsys.readouterr().out
         line = [ln for ln in out.splitlines() if "imply an odometry scale" in ln]
         assert len(line) == 1
-        implied = float(line[0].rsplit("--odometry-scale ", 1)[1])
-        assert 0.8 <= implied <= 1.25
+        implied = line[0].rsplit("--odometry-scale ", 1)[1].split(" --odometry-noise ")
+        assert 0.8 <= float(implied[0]) <= 1.25 and 0.0 <= float(implied[1]) < 90.0
     for argv, why in ((["--moving", "inhand", "--odometry-scale", "fast"], "a number or 'learn'"),
                       (["--moving", "inhand", "--odometry-scale", "2"], "odometry_scale must be <="),
-                      (["--moving", "push", "--odometry-scale", "0.95"], "needs --moving inhand")):
+                      (["--moving", "push", "--odometry-scale", "0.95"], "needs --moving inhand"),
+                      (["--moving", "inhand", "--odometry-noise", "nan"], "--odometry-noise must be"),
+                      (["--moving", "inhand", "--odometry-noise", "0"], "--odometry-noise must be")):
         assert main(["map", "--mesh", "milk", "--touches", "2", *argv]) == 1
         assert why in capsys.readouterr().err
 

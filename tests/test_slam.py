@@ -103,38 +103,44 @@ def test_a_calibrated_odometry_scale_is_applied_and_can_be_held(milk):
     assert "odometry_scale" not in held.info
 
 
-def test_calibrate_odometry_scale_reads_the_scale_off_the_trajectory(milk):
+def test_calibrate_odometry_reads_scale_and_noise_off_the_trajectory(milk):
     turn = np.eye(4)
     turn[:3, :3] = Rotation.from_euler("z", 20.0, degrees=True).as_matrix()
     for scale in (1.0, 0.95):
         slam = TactileSLAM(_box(milk, 0.03), odometry_noise=(0.0005, np.deg2rad(1.0)), odometry_scale=scale, rng=0)
         for _ in range(3):
             slam.update([], odometry=turn)   # no touches: the trajectory is the scaled odometry
-        s, sd = slam.calibrate_odometry_scale()
+        cal = slam.calibrate_odometry()
         # 300 particles spread by 1 deg a step: their mean is within about 0.1 deg of 20 * scale
-        assert abs(s - scale) < 0.01
+        assert abs(cal.scale - scale) < 0.01 and cal.updates == 3
         # sqrt(3) deg of odometry noise (and the tracked turn's own) over 60 deg reported
-        assert np.deg2rad(1.0) * np.sqrt(3) / np.deg2rad(60.0) <= sd < 0.1
+        assert np.deg2rad(1.0) * np.sqrt(3) / np.deg2rad(60.0) <= cal.scale_sd < 0.1
+        # each step turned as reported (scaled), up to the particles' mean
+        assert 0.0 <= cal.turn_noise < np.deg2rad(0.3)
     # a biased odometry on a box: the estimated trajectory turns 1 / 1.05 of what was reported,
     # whatever scale the run applied (its own pushes of 0.5 deg a step, and the final turn's
     # error, leave a spread of about 0.6 % over 48 steps of 15 deg)
-    got = {}
     for applied in (1.0, 0.97):
         world = MovingWorld(milk, rng=2, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05)
         slam = TactileSLAM(_box(milk, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
                            odometry_scale=applied, sigma_pos=0.001, sigma_nor=0.087, rng=2)
         explore(world, _box(milk, 0.06), 48, slam=slam, fingers=3, rng=2)
-        got[applied] = slam.calibrate_odometry_scale()
-        assert abs(got[applied][0] - 1 / 1.05) < 0.02, got   # (measured: 1.1 % and 0.2 % off)
-        assert 0.0 < got[applied][1] < 0.03
+        cal = slam.calibrate_odometry()
+        assert abs(cal.scale - 1 / 1.05) < 0.02, cal   # (measured: 1.1 % and 0.2 % off)
+        assert 0.0 < cal.scale_sd < 0.03 and cal.updates == 48
+        # the pushes turn it by 0.5 deg a step beside the odometry; the trajectory's own
+        # per-step error adds to that, and the 1.5 deg the run assumed is far above both
+        assert np.deg2rad(0.2) < cal.turn_noise < np.deg2rad(1.2), np.degrees(cal.turn_noise)
     # nothing to calibrate from: no update with an odometry, or none that turned
     slam = TactileSLAM(_box(milk, 0.03), rng=0)
     with pytest.raises(ValidationError, match="odometry"):
-        slam.calibrate_odometry_scale()
+        slam.calibrate_odometry()
     slam.update([])
-    slam.update([], odometry=np.eye(4))
-    with pytest.raises(ValidationError, match="odometry"):
-        slam.calibrate_odometry_scale()
+    for _ in range(3):
+        slam.update([], odometry=np.eye(4))
+    slam.update([], odometry=turn)
+    with pytest.raises(ValidationError, match="has 1"):
+        slam.calibrate_odometry()
 
 
 def test_slam_bad_input(milk):

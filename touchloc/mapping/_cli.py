@@ -28,6 +28,9 @@ def register(sub):
                         "held fixed (the right one for the simulated bias is 0.952), with the turn of an object "
                         "that only a small feature shows estimated apart; 'learn' learns it online from 1. "
                         "Default: the turns taken as reported (see docs/slam.md, 'What a known scale is worth')")
+    p.add_argument("--odometry-noise", type=float, default=1.5, metavar="DEG",
+                   help="with --moving inhand: the standard deviation of each reported turn's error once scaled "
+                        "(deg, default 1.5); an in-hand run ends by printing the value its own turns imply")
     p.add_argument("--fingers", type=int, default=1, help="fingers closing at once per action (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", default=None, help="write a PNG of the map beside the true object")
@@ -61,6 +64,8 @@ def run(args) -> int:
     slam = None
     if args.odometry_scale is not None and args.moving != "inhand":
         raise ValidationError("--odometry-scale needs --moving inhand (only in-hand turns come with an odometry)")
+    if not (np.isfinite(args.odometry_noise) and 0.0 < args.odometry_noise <= 90.0):
+        raise ValidationError(f"--odometry-noise must be in (0, 90] deg, got {args.odometry_noise!r}")
     if args.moving == "none":
         world = SimulatedWorld(obj, T, rng=args.seed + 1, **noise)
     else:
@@ -72,7 +77,7 @@ def run(args) -> int:
         else:
             world = MovingWorld(obj, T, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0),
                                 bias=0.05, rng=args.seed + 1, **noise)
-            motion = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)))
+            motion = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(args.odometry_noise)))
             if args.odometry_scale == "learn":
                 motion.update(learn_odometry_scale=True)
             elif args.odometry_scale is not None:
@@ -113,12 +118,13 @@ def run(args) -> int:
     if history:
         stats = f"final Chamfer {history[-1][1] * 1e3:.2f} mm, F-score@5mm {history[-1][2]:.3f}"
     print(f"\n{res.touches} touches, {res.map.n_contacts} contacts in {dt:.1f} s; {stats}")
-    if args.moving == "inhand":
-        # the scale this run's trajectory implies: on an object whose touches show the turn
-        # (a box) it is the calibration to hold for one that rarely does (a mug)
-        s, sd = slam.calibrate_odometry_scale()
-        print(f"the estimated turns imply an odometry scale of {s:.3f} +- {sd:.3f}; "
-              f"to hold it on another object: --odometry-scale {s:.3f}")
+    if args.moving == "inhand" and res.touches >= 3:
+        # what this run's trajectory implies of the odometry: on an object whose touches show
+        # the turn (a box) it is the calibration to hold for one that rarely does (a mug)
+        cal = slam.calibrate_odometry()
+        print(f"the estimated turns imply an odometry scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} and a turn "
+              f"noise of {np.degrees(cal.turn_noise):.2f} deg; to hold them on another object: "
+              f"--odometry-scale {cal.scale:.3f} --odometry-noise {np.degrees(cal.turn_noise):.2f}")
     title = f"{obj.name}: {args.method} map, {args.planner} touches" + (f"; {stats}" if stats else "")
     if args.plot:
         from .viz import plot_map

@@ -55,6 +55,8 @@ measurements behind each choice.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, logsumexp
@@ -67,6 +69,16 @@ from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
 __all__ = ["TactileSLAM", "MovingWorld", "transform_results"]
+
+
+class OdometryCalibration(NamedTuple):
+    """What :meth:`TactileSLAM.calibrate_odometry` measured: the odometry's turn scale and
+    its standard deviation, the turn noise per update (rad), and the number of updates."""
+
+    scale: float
+    scale_sd: float
+    turn_noise: float
+    updates: int
 
 
 def _as_pose(T, name):
@@ -261,37 +273,45 @@ class TactileSLAM:
             C = self._predict_cov(C, sig, self._last_odometry)
         return 0.5 * (C[:6, :6] + C[:6, :6].T)
 
-    def calibrate_odometry_scale(self) -> tuple[float, float]:
-        """The odometry's turn scale that the whole estimated trajectory implies.
+    def calibrate_odometry(self) -> OdometryCalibration:
+        """The odometry's turn scale and turn noise that the whole estimated trajectory implies.
 
-        Over every update that came with an odometry, the turn the estimated trajectory
-        made about that odometry's axis, summed, over the turn the odometry reported,
-        summed. This is the value to hold on a later run with the same hand
-        (``TactileSLAM(..., learn_odometry_scale=True, odometry_scale=s,
-        odometry_scale_sd=0.0)``), and the way to bring a biased odometry to an object
-        whose turn only a small feature shows: calibrate on an object whose touches show
-        the turn at every step (a box), then hold the scale for a mug, whose turn the
-        online estimate learns too late (docs/slam.md, "Calibrating the scale on
-        another object").
+        For every update that came with an odometry, the turn the estimated trajectory
+        made about that odometry's axis is compared with the turn the odometry reported.
+        The scale is the ratio of their sums; the turn noise is the spread of each
+        update's turn about the scaled report. These are the values to hold on a later
+        run with the same hand::
+
+            cal = box_slam.calibrate_odometry()
+            TactileSLAM(..., learn_odometry_scale=True, odometry_scale=cal.scale, odometry_scale_sd=0.0,
+                        odometry_noise=(translation_sd, cal.turn_noise))
+
+        This is how a biased odometry reaches an object whose turn only a small feature
+        shows: calibrate on an object whose touches show the turn at every step (a box),
+        then hold the values for a mug, whose turn the online estimate learns too late
+        (docs/slam.md, "Calibrating the odometry on another object").
 
         Returns
         -------
-        scale : float
-            Estimated turn over reported turn (0.952 for an odometry that reports 5 %
-            too much). It does not depend on the scale the run itself applied.
-        sd : float
-            Its standard deviation under this estimator's own noise model: the current
-            turn's variance (:meth:`pose_covariance`) plus ``odometry_noise``'s rotation
-            variance for each update with an odometry (real motion beside the commanded
-            turn), over the reported turn.
+        OdometryCalibration
+            ``scale``: estimated turn over reported turn (0.952 for an odometry that
+            reports 5 % too much); it does not depend on the scale the run itself
+            applied. ``scale_sd``: its standard deviation under this estimator's own noise
+            model (the current turn's variance from :meth:`pose_covariance`, plus
+            ``odometry_noise``'s rotation variance for each update), over the reported
+            turn. ``turn_noise`` (rad): the standard deviation of each update's turn about
+            ``scale`` times the reported one (the median absolute deviation, scaled to a
+            Gaussian's; the first updates, while the map is a blob, jump far more than the
+            rest). It includes the trajectory's own per-update error, so it errs large:
+            0.8-0.9 deg where the motion's own was 0.5-0.6 deg, on boxes turned 96 times.
+            ``updates``: how many updates it rests on.
 
         Raises
         ------
         ValidationError
-            If no update came with an odometry that turned.
+            If fewer than three updates came with an odometry that turned.
         """
-        turned = reported = 0.0
-        n = 0
+        turned, reported = [], []
         axis = None
         for k, st in enumerate(self._steps):
             D = st.get("odometry")
@@ -304,16 +324,22 @@ class TactileSLAM:
             axis = w / theta
             # trajectory[0] is the initial pose; update k's pose is trajectory[k + 1]
             A, B = self.trajectory[k], self.trajectory[k + 1]
-            turned += float(Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis)
-            reported += theta
-            n += 1
-        if n == 0:
-            raise ValidationError("calibrate_odometry_scale needs updates with an odometry that turned; "
-                                  "none of this run's did")
+            turned.append(float(Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis))
+            reported.append(theta)
+        n = len(turned)
+        if n < 3:
+            raise ValidationError(f"calibrate_odometry needs at least three updates with an odometry that turned; "
+                                  f"this run has {n}")
+        turned, reported = np.array(turned), np.array(reported)
+        scale = float(turned.sum() / reported.sum())
         a = self.trajectory[-1][:3, :3].T @ axis   # the last turn's axis in the object frame
         C = self.pose_covariance(predict=False)[3:, 3:]
         var = float(a @ C @ a) + n * self.odometry_noise[1] ** 2
-        return turned / reported, float(np.sqrt(var)) / reported
+        # a robust spread (the median absolute deviation, scaled to a Gaussian's sd): the
+        # first updates, while the map is still a blob, jump by several times the rest
+        r = turned - scale * reported
+        noise = float(1.4826 * np.median(np.abs(r - np.median(r))))
+        return OdometryCalibration(scale, float(np.sqrt(var)) / float(reported.sum()), noise, n)
 
     def _unseen_turn_covariance(self) -> np.ndarray:
         """(6, 6) the covariance, at the next update, of the turn made since the contacts last
