@@ -118,10 +118,15 @@ def run(args) -> int:
     if history:
         stats = f"final Chamfer {history[-1][1] * 1e3:.2f} mm, F-score@5mm {history[-1][2]:.3f}"
     print(f"\n{res.touches} touches, {res.map.n_contacts} contacts in {dt:.1f} s; {stats}")
-    if args.moving == "inhand" and res.touches >= 3:
+    cal = None
+    if args.moving == "inhand":
         # what this run's trajectory implies of the odometry: on an object whose touches show
         # the turn (a box) it is the calibration to hold for one that rarely does (a mug)
-        cal = slam.calibrate_odometry()
+        try:
+            cal = slam.calibrate_odometry()
+        except ValidationError:   # too short a run (fewer than three turns)
+            pass
+    if cal is not None:
         print(f"the estimated turns imply an odometry scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} and a turn "
               f"noise of {np.degrees(cal.turn_noise):.2f} deg; to hold them on another object: "
               f"--odometry-scale {cal.scale:.3f} --odometry-noise {np.degrees(cal.turn_noise):.2f}")

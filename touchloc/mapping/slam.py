@@ -303,7 +303,7 @@ class TactileSLAM:
             ``scale`` times the reported one (the median absolute deviation, scaled to a
             Gaussian's; the first updates, while the map is a blob, jump far more than the
             rest). It includes the trajectory's own per-update error, so it errs large:
-            0.8-0.9 deg where the motion's own was 0.5-0.6 deg, on boxes turned 96 times.
+            0.75-0.9 deg where the motion's own was 0.45-0.6 deg, on boxes turned 96 times.
             ``updates``: how many updates it rests on.
 
         Raises
