@@ -107,7 +107,9 @@ def run_cells(n_trials, meshes=MESHES + HELD_OUT_MESHES, contacts=CONTACTS, name
         mod.__dict__.update(globals())
         sys.modules[__name__] = mod
     out = {}
-    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("fork")) as ex:
+    # spawned, not forked: a fork of a process whose compiled kernels have started their OpenMP
+    # threads (as any benchmark run before this one by run.py has) dies in the child
+    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("spawn")) as ex:
         for rows in ex.map(_cell, tasks):
             for name, mesh, k, q, dt in rows:
                 out.setdefault((name, mesh, k), []).append((q, dt))

@@ -57,7 +57,9 @@ def runs(setting, n, max_touches, n_particles, rule):
         mod = types.ModuleType(__name__)
         mod.__dict__.update(globals())
         sys.modules[__name__] = mod
-    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("fork")) as ex:
+    # spawned, not forked: a fork of a process whose compiled kernels have started their OpenMP
+    # threads (as any benchmark run before this one by run.py has) dies in the child
+    with ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("spawn")) as ex:
         return list(ex.map(_one, [(setting, i, max_touches, n_particles, rule) for i in range(n)]))
 
 
