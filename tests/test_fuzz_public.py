@@ -335,8 +335,10 @@ def _classifier(split):
 
 
 CHEAP = {
-    "belief.identify": _SMALL_SERIES,
-    "belief.log_evidence": _SMALL_SERIES,
+    # seeded: a search this small from an unseeded generator misses the box now and then, and
+    # the ordinary call must not depend on the draw (a hostile rng still replaces the seed)
+    "belief.identify": dict(_SMALL_SERIES, rng=0),
+    "belief.log_evidence": dict(_SMALL_SERIES, rng=0),
     "planners.active_localization": dict(n_particles=50, max_touches=1),
     "models.SumModel": lambda w: dict(models=[w["model"], w["model"]]),
     "models.RayStopModel": lambda w: dict(origins=w["starts"], directions=w["ends"] - w["starts"],
