@@ -183,6 +183,120 @@ def test_grid_scratch_rows_hold_the_longest_list_for_every_thread(objects):
         assert grid.scratch().shape == (numba.config.NUMBA_NUM_THREADS, grid.longest)
 
 
+def test_cube_bins_cover_every_direction_and_hold_their_own_samples(rng):
+    """Every unit vector falls in one of the 384 bins (the axes and the cube's corners
+    included), the zero vector in none, and each bin's sample directions (its centre and
+    corners) lie in it or on its border."""
+    from touchloc.models import _kernels as K
+
+    d = rng.normal(size=(5000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    special = np.vstack([np.eye(3), -np.eye(3), np.array([[1, 1, 1], [-1, 1, -1], [1, -1e-300, 0]]) / np.sqrt(3)])
+    for v in np.vstack([d, special]):
+        side, b = K._cube_bin(*v)
+        assert 0 <= side < 6 and 0 <= b < 64
+        # the side is the axis of the largest component, with its sign
+        a = int(np.argmax(np.abs(v)))
+        assert side // 2 == a or abs(abs(v[side // 2]) - abs(v[a])) < 1e-12
+    assert K._cube_bin(0.0, 0.0, 0.0) == (-1, 0)
+    dirs, corners = K.cube_bin_directions()
+    assert np.allclose(np.linalg.norm(dirs, axis=1), 1.0)
+    for b in range(6 * 64):
+        side, bit = K._cube_bin(*dirs[b])
+        assert side * 64 + bit == b  # a bin's centre is in the bin
+        # its corners are the centre's nearest grid points: within a bin's diagonal
+        assert np.all(np.degrees(np.arccos(np.clip(dirs[corners[b]] @ dirs[b], -1, 1))) < 12.0)
+
+
+def test_popcount_counts_the_set_bits(rng):
+    from touchloc.models import _kernels as K
+
+    for x in list(rng.integers(0, 2**63, 200, dtype=np.uint64)) + [0, 1, 2**64 - 1, 2**63]:
+        x = np.uint64(x)
+        assert K._popcount(x) == bin(int(x)).count("1")
+
+
+def test_plane_and_edge_bound_is_below_the_cost_and_exact_over_the_triangle(objects, rng):
+    """The near lists' bound never exceeds a face's joint cost, and equals it where it says
+    so (the point's projection lies in the triangle)."""
+    from touchloc.models import _kernels as K
+
+    tree = objects["mug"].bvh(0.01)
+    planes = K.face_planes(tree.tri, tree.nrm)
+    F = len(tree.tri)
+    exact_seen = 0
+    for _ in range(4000):
+        f = int(rng.integers(F))
+        c = tree.tri[f].mean(axis=0)
+        p = c + rng.normal(scale=0.004, size=3)
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        lb, exact = K._face_lb_edges(planes, f, *p, *n, 0.01)
+        cost = K._face_cost(tree.tri, tree.nrm, f, *p, *n, 0.01)[0]
+        assert lb <= cost * (1 + 1e-9) + 1e-15
+        if exact:
+            exact_seen += 1
+            assert lb == pytest.approx(cost, rel=1e-9, abs=1e-15)
+    assert 200 < exact_seen < 3800  # both kinds of point were met
+
+
+def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exact_method(objects):
+    """The normal-keyed lists: one entry per set bit, in order; on queries like those of a
+    pose near the truth (another draw than the build's own check) they answer nearly all,
+    never below the exact cost and within 0.1 d_M^2 of it on at least 98 % of them."""
+    from touchloc.models import _kernels as K
+
+    for name in ("mug", "milk", "lemon"):
+        obj = objects[name]
+        model = ProximityModel(obj, 0.002, np.deg2rad(5))
+        w = model._weight(True)
+        grid = model._grid(w)
+        table = grid.near_cells
+        assert table.shape == (int(np.prod(grid.shape[0])), 8) and (table[:, 7] == 0).all()
+        bits = np.array([[K._popcount(x) for x in r[:6]] for r in table]).sum(axis=1)
+        assert bits.sum() == len(grid.near_off) - 1 > 0
+        # each cell's first entry follows the entries of the cells before it
+        assert np.array_equal(table[bits > 0, 6].astype(np.int64), np.cumsum(bits)[bits > 0] - bits[bits > 0])
+        assert np.all(np.diff(grid.near_off) > 0) and grid.near_off[-1] == len(grid.near_ids)
+        assert 0 <= grid.near_ids.min() and grid.near_ids.max() < len(grid.tri)
+        # the lists passed their own check
+        answered, near_off, _, general_off, kept = grid.near_check
+        assert kept == 1 and answered > 0.95 and near_off <= max(K.NEAR_CHECK_SHARE, general_off)
+
+        P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=6000, seed=7)
+        found, near = K.near_list_costs(grid, P, N)
+        exact = model.query_costs(P, N, method="exact")
+        assert found.mean() > 0.95
+        err = near[found] / model.sigma_pos**2 - exact[found]
+        assert err.min() > -1e-9
+        assert np.mean(err > 0.1) < 0.02, name
+        # and the fast method gives these answers
+        fast = model.query_costs(P, N, method="fast")
+        assert np.allclose(fast[found], near[found] / model.sigma_pos**2, rtol=1e-12, atol=0)
+
+
+def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
+    """A mesh whose faces are small against the cells (a finely tessellated torus) fails the
+    lists' check (their answers are off more often than the general lists'): it keeps none,
+    and the fast method answers from the cells' general lists and their walk, within 0.1
+    d_M^2 of the exact cost on 99.5 % of such queries."""
+    from touchloc.models import MeshObject
+    from touchloc.models import _kernels as K
+
+    obj = MeshObject(trimesh.creation.torus(0.08, 0.03, major_sections=100, minor_sections=50), name="torus")
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    w = model._weight(True)
+    grid = model._grid(w)
+    answered, near_off, _, general_off, kept = grid.near_check
+    assert kept == 0 and near_off > max(K.NEAR_CHECK_SHARE, general_off)
+    assert len(grid.near_cells) == 0 and len(grid.near_ids) == 0
+    P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=4000, seed=7)
+    found, _ = K.near_list_costs(grid, P, N)
+    assert not found.any()
+    err = model.query_costs(P, N, method="fast") - model.query_costs(P, N, method="exact")
+    assert err.min() > -1e-9 and np.mean(err > 0.1) < 0.005
+
+
 def test_auto_uses_the_grid_from_its_pair_threshold_and_not_below(objects, rng):
     from touchloc.models.proximity import AUTO_FAST_PAIRS
 

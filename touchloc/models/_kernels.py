@@ -16,15 +16,20 @@ Three evaluators share the triangle routine:
 * ``query_grid``: a precomputed grid (nested levels, finest near the mesh) whose cells
   list the faces that win at the cell centre for a set of sampled normals (and, in
   position-only mode, every face that can be closest anywhere in the cell); the minimum
-  is taken over that list and a greedy walk over neighbouring faces. Exact in
-  position-only mode, an approximation with measured error otherwise.
+  is taken over that list and a greedy walk over neighbouring faces. Near the surface a
+  joint query first looks in a shorter list keyed by its normal's cube-map bin as well
+  as its cell (:func:`build_near_lists`). Exact in position-only mode, an approximation
+  with measured error otherwise.
 
 Every evaluator skips a face whose lower bound (squared distance to its plane plus the
-normal term) is already above the best cost, before the closest-point routine.
+normal term) is already above the best cost, before the closest-point routine; the near
+lists use a tighter bound that adds the in-plane distance outside the triangle's edges
+and is the cost itself over the triangle (:func:`_face_lb_edges`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from dataclasses import dataclass
@@ -167,6 +172,57 @@ def _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w):
     if w > 0.0:
         lb += w * ((nx - nrm[f, 0]) ** 2 + (ny - nrm[f, 1]) ** 2 + (nz - nrm[f, 2]) ** 2)
     return lb
+
+
+def face_planes(tri: np.ndarray, nrm: np.ndarray) -> np.ndarray:
+    """(F, 16) per face: its unit normal and plane offset, then for each edge the unit
+    normal within the face's plane pointing out of the triangle, and its offset.
+
+    For a point p, ``n . p - d`` is its signed distance to the plane and each edge's
+    ``m . p - e`` its in-plane distance outside that edge (negative inside); see
+    :func:`_face_lb_edges`.
+    """
+    tri = np.asarray(tri, dtype=np.float64)
+    nrm = np.asarray(nrm, dtype=np.float64)
+    out = np.zeros((len(tri), 16))
+    out[:, 0:3] = nrm
+    out[:, 3] = np.einsum("ij,ij->i", nrm, tri[:, 0])
+    for k in range(3):
+        a, b, c = tri[:, k], tri[:, (k + 1) % 3], tri[:, (k + 2) % 3]
+        m = np.cross(b - a, nrm)
+        length = np.linalg.norm(m, axis=1, keepdims=True)
+        m = np.divide(m, length, out=np.zeros_like(m), where=length > 0)
+        e = np.einsum("ij,ij->i", m, a)
+        flip = np.einsum("ij,ij->i", m, c) > e  # the third vertex lies inside
+        m[flip] *= -1.0
+        e[flip] *= -1.0
+        out[:, 4 + 4 * k:7 + 4 * k] = m
+        out[:, 7 + 4 * k] = e
+    return out
+
+
+@nb.njit(inline="always", **_NB)
+def _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w):
+    """A lower bound of face f's joint cost from its plane and edge lines
+    (:func:`face_planes`), and whether it is the cost itself.
+
+    The point's distance to the triangle is at least its distance to the plane and, within
+    the plane, at least its distance outside any one edge; where it is outside none, its
+    projection lies in the triangle and the plane's distance is the distance. Returns
+    (bound, exact).
+    """
+    s = px * planes[f, 0] + py * planes[f, 1] + pz * planes[f, 2] - planes[f, 3]
+    e = px * planes[f, 4] + py * planes[f, 5] + pz * planes[f, 6] - planes[f, 7]
+    e1 = px * planes[f, 8] + py * planes[f, 9] + pz * planes[f, 10] - planes[f, 11]
+    if e1 > e:
+        e = e1
+    e2 = px * planes[f, 12] + py * planes[f, 13] + pz * planes[f, 14] - planes[f, 15]
+    if e2 > e:
+        e = e2
+    lb = s * s + w * ((nx - planes[f, 0]) ** 2 + (ny - planes[f, 1]) ** 2 + (nz - planes[f, 2]) ** 2)
+    if e > 0.0:
+        return lb + e * e, False
+    return lb, True
 
 
 @nb.njit(inline="always", **_NB)
@@ -424,6 +480,349 @@ def query_joint(tree: BVH, P, N, wp: float, wn: float):
 
 
 # ---------------------------------------------------------------------------------------
+# near-surface lists keyed by the query's normal (the fast method's first stop)
+#: Normal bins: a cube map of 8 x 8 bins on each of its 6 sides (one 64-bit word a side).
+NEAR_BINS = 8
+#: Finest-level cells whose centre lies within this many cells of the surface get lists.
+NEAR_REACH = 3.0
+#: A (cell, normal bin) gets a list when some sample in it costs less than this (d_M^2):
+#: the pairs of poses near a posterior's support. Costlier pairs take the cell's own list.
+NEAR_COST = 25.0
+#: ... and the list holds the winners of its samples that cost less than this (d_M^2).
+NEAR_SAMPLE_COST = 50.0
+
+_M1 = np.uint64(0x5555555555555555)
+_M2 = np.uint64(0x3333333333333333)
+_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
+_H01 = np.uint64(0x0101010101010101)
+
+
+@nb.njit(inline="always", **_NB)
+def _popcount(x):
+    """Set bits of a uint64."""
+    x = x - ((x >> np.uint64(1)) & _M1)
+    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
+    x = (x + (x >> np.uint64(4))) & _M4
+    return np.int64((x * _H01) >> np.uint64(56))
+
+
+@nb.njit(inline="always", **_NB)
+def _cube_bin(nx, ny, nz):
+    """The cube-map bin of a direction: (side 0-5, bin within the side 0-63), or (-1, 0)
+    for the zero vector. Side 2a / 2a + 1 is the + / - side of axis a."""
+    ax, ay, az = abs(nx), abs(ny), abs(nz)
+    if ax >= ay and ax >= az:
+        side = 0 if nx > 0.0 else 1
+        m, u, v = ax, ny, nz
+    elif ay >= az:
+        side = 2 if ny > 0.0 else 3
+        m, u, v = ay, nx, nz
+    else:
+        side = 4 if nz > 0.0 else 5
+        m, u, v = az, nx, ny
+    if not m > 0.0:
+        return -1, 0
+    iu = int((u / m + 1.0) * (0.5 * NEAR_BINS))
+    iv = int((v / m + 1.0) * (0.5 * NEAR_BINS))
+    iu = min(max(iu, 0), NEAR_BINS - 1)
+    iv = min(max(iv, 0), NEAR_BINS - 1)
+    return side, iu * NEAR_BINS + iv
+
+
+def cube_bin_directions():
+    """Sample directions of the cube map's bins: (dirs, samples). ``dirs`` holds each bin's
+    centre (row = side * 64 + bin, as :func:`_cube_bin` numbers them) and then every
+    side's points at half a bin's spacing; ``samples`` (384, 8) are the rows of each bin's
+    4 corners and 4 edge midpoints."""
+    B = NEAR_BINS
+    H = 2 * B + 1  # points per row of a side at half a bin's spacing
+
+    def on_side(side, u, v):
+        s = 1.0 if side % 2 == 0 else -1.0
+        d = [(s, u, v), (u, s, v), (u, v, s)][side // 2]
+        return np.asarray(d) / np.linalg.norm(d)
+
+    centres = [on_side(side, (iu + 0.5) / B * 2 - 1, (iv + 0.5) / B * 2 - 1)
+               for side in range(6) for iu in range(B) for iv in range(B)]
+    half = [on_side(side, iu / (2 * B) * 2 - 1, iv / (2 * B) * 2 - 1)
+            for side in range(6) for iu in range(H) for iv in range(H)]
+    n = 6 * B * B
+    samples = np.empty((n, 8), np.int64)
+    for side in range(6):
+        for iu in range(B):
+            for iv in range(B):
+                k = [(side * H + 2 * iu + a) * H + 2 * iv + b
+                     for a, b in ((0, 0), (0, 2), (2, 0), (2, 2), (0, 1), (1, 0), (1, 2), (2, 1))]
+                samples[(side * B + iu) * B + iv] = n + np.asarray(k)
+    return np.vstack([centres, half]), samples
+
+
+@nb.njit(inline="always", **_NB)
+def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
+    """The best face of the normal-keyed list of a finest-level ``cell`` for this query.
+
+    ``near`` = (cells, off, ids, planes) of :class:`CandidateGrid`. Returns (found, cost,
+    face); ``found`` is False where the cell or the query's bin has no list.
+    """
+    cells, off, ids, planes = near
+    if cell >= cells.shape[0]:
+        return False, np.inf, -1
+    side, bit = _cube_bin(nx, ny, nz)
+    if side < 0:
+        return False, np.inf, -1
+    word = cells[cell, side]
+    mask = np.uint64(1) << np.uint64(bit)
+    if (word & mask) == np.uint64(0):
+        return False, np.inf, -1
+    e = np.int64(cells[cell, 6]) + _popcount(word & (mask - np.uint64(1)))
+    for s in range(side):
+        e += _popcount(cells[cell, s])
+    best = np.inf
+    bf = -1
+    for j in range(off[e], off[e + 1]):
+        f = ids[j]
+        lb, exact = _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w)
+        if lb >= best:
+            continue
+        if exact:
+            c = lb
+        else:
+            c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+        if c < best:
+            best = c
+            bf = f
+    return True, best, bf
+
+
+#: a sample point with more faces than this within the sample bound queries the tree
+_NEAR_CROWD = 256
+
+
+@nb.njit(parallel=True, **_NB)
+def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, dirs, w, bound, cost, face):
+    """Exact joint winners (tree order; -1 with ``cost`` = bound when none is below it) of
+    every point for every direction.
+
+    A face farther from the point than sqrt(bound) costs more than the bound, so each
+    point first gathers the faces within that distance and scores every direction over
+    them alone (the tree's query where they are more than :data:`_NEAR_CROWD`).
+    """
+    r2 = bound
+    for i in nb.prange(pts.shape[0]):
+        px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
+        cand = np.empty(_NEAR_CROWD, np.int64)
+        k = 0
+        stack = np.empty(_STACK, np.int64)
+        sp = 1
+        stack[0] = 0
+        while sp > 0 and k <= _NEAR_CROWD:
+            sp -= 1
+            node = stack[sp]
+            if _box_d2(px, py, pz, plo, phi, node) >= r2:
+                continue
+            if left[node] < 0:
+                for f in range(start[node], start[node] + count[node]):
+                    d2, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, 0.0, 0.0, 0.0, 0.0)
+                    if d2 < r2:
+                        if k < _NEAR_CROWD:
+                            cand[k] = f
+                        k += 1
+            else:
+                stack[sp] = left[node]
+                stack[sp + 1] = right[node]
+                sp += 2
+        for d in range(dirs.shape[0]):
+            nx, ny, nz = dirs[d, 0], dirs[d, 1], dirs[d, 2]
+            if k > _NEAR_CROWD:
+                c, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                          px, py, pz, nx, ny, nz, w, bound)
+            else:
+                c = bound
+                bf = -1
+                for j in range(k):
+                    f = cand[j]
+                    if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= c:
+                        continue
+                    cf, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+                    if cf < c:
+                        c = cf
+                        bf = f
+            cost[i, d] = c
+            face[i, d] = bf
+
+
+@nb.njit(inline="always", **_NB)
+def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf):
+    """The distinct winners of the samples of one cell and bin (the cell's 8 corners times
+    the bin's centre, corners and edge midpoints) costing below the bound, into ``buf``;
+    returns their number, or 0 when no sample costs below ``relevant``."""
+    k = 0
+    low = np.inf
+    for dx in range(2):
+        for dy in range(2):
+            for dz in range(2):
+                ci = cidx[((ijk[0] + dx) * S1 + ijk[1] + dy) * S2 + ijk[2] + dz]
+                for t in range(corners.shape[1] + 1):
+                    d = b if t == corners.shape[1] else corners[b, t]
+                    low = min(low, cost[ci, d])
+                    f = face[ci, d]
+                    if f < 0:
+                        continue
+                    seen = False
+                    for u in range(k):
+                        if buf[u] == f:
+                            seen = True
+                            break
+                    if not seen:
+                        buf[k] = f
+                        k += 1
+    return k if low < relevant else 0
+
+
+@nb.njit(parallel=True, **_NB)
+def _near_count(cells, S1, S2, cidx, cost, face, corners, relevant, counts):
+    for r in nb.prange(cells.shape[0]):
+        buf = np.empty(8 * (corners.shape[1] + 1), np.int64)
+        for b in range(corners.shape[0]):
+            counts[r, b] = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf)
+
+
+@nb.njit(parallel=True, **_NB)
+def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids):
+    for r in nb.prange(cells.shape[0]):
+        buf = np.empty(8 * (corners.shape[1] + 1), np.int64)
+        for b in range(corners.shape[0]):
+            k = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf)
+            for u in range(k):
+                ids[start[r, b] + u] = buf[u]
+
+
+def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float):
+    """The normal-keyed lists of the finest level's cells near the surface.
+
+    A cell whose centre lies within :data:`NEAR_REACH` cells of the surface is sampled at
+    its 8 corners, each for the centre and 4 corners of every cube-map bin; a (cell, bin)
+    in which some sample costs less than :data:`NEAR_COST` (d_M^2 at ``sigma2``) lists the
+    distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`. Returns the
+    :class:`CandidateGrid` fields ``near_cells`` (cells, 8) uint64 (per cell of the level:
+    6 words, bit b of word s set where side s's bin b has a list, then the entry of its
+    first list), ``near_off`` and ``near_ids`` (the lists, tree-order faces) and
+    ``planes`` (:func:`face_planes`).
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    shape = np.asarray(shape, dtype=np.int64)
+    g = [lo[d] + (np.arange(shape[d]) + 0.5) * cell for d in range(3)]
+    centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
+    args = (tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+    reach = NEAR_REACH * cell
+    d2 = np.empty((len(centres), 1))
+    _near_samples(*args, centres, np.zeros((1, 3)), 0.0, reach * reach, d2, np.empty((len(centres), 1), np.int64))
+    cells = np.flatnonzero(d2[:, 0] < reach * reach)
+    ijk = np.stack(np.unravel_index(cells, tuple(shape)), axis=1).astype(np.int64)
+    S = shape + 1
+    corner_ids = np.unique(np.concatenate([np.ravel_multi_index(tuple((ijk + np.array(o)).T), tuple(S))
+                                           for o in np.ndindex(2, 2, 2)])) if len(cells) else np.zeros(0, np.int64)
+    cidx = np.full(int(np.prod(S)), -1, np.int64)
+    cidx[corner_ids] = np.arange(len(corner_ids))
+    pts = lo + np.stack(np.unravel_index(corner_ids, tuple(S)), axis=1) * cell
+    dirs, corners = cube_bin_directions()
+    cost = np.empty((len(pts), len(dirs)))
+    face = np.empty((len(pts), len(dirs)), np.int64)
+    _near_samples(*args, np.ascontiguousarray(pts), dirs, float(w), NEAR_SAMPLE_COST * sigma2, cost, face)
+    relevant = NEAR_COST * sigma2
+    counts = np.zeros((len(cells), len(corners)), np.int64)
+    _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts)
+    # entries in (cell, bin) order; per cell one cache line: its 6 words (bit b of word s:
+    # side s's bin b has a list), the entry of its first list, and padding
+    has = counts > 0
+    lengths = counts[has]
+    off = np.zeros(len(lengths) + 1, np.int64)
+    np.cumsum(lengths, out=off[1:])
+    start = np.zeros_like(counts)
+    start[has] = off[:-1]
+    ids = np.empty(int(off[-1]), np.int64)
+    _near_fill(ijk, S[1], S[2], cidx, cost, face, corners, relevant, start, ids)
+    table = np.zeros((int(np.prod(shape)), 8), np.uint64)
+    if len(cells):
+        bits = has.reshape(len(cells), 6, 64).astype(np.uint64) << np.arange(64, dtype=np.uint64)
+        table[cells, :6] = np.bitwise_or.reduce(bits, axis=2)
+        per_cell = has.sum(axis=1)
+        table[cells, 6] = np.concatenate([[0], np.cumsum(per_cell)[:-1]]).astype(np.uint64)
+    return dict(near_cells=table, near_off=off.astype(np.int32), near_ids=ids.astype(np.int32),
+                planes=face_planes(tree.tri, tree.nrm))
+
+
+@nb.njit(**_NB)
+def _near_query(tri, nrm, lo, h, shape, near, P, N, w, found, cost):
+    for q in range(P.shape[0]):
+        px, py, pz = P[q, 0], P[q, 1], P[q, 2]
+        ix = int(np.floor((px - lo[0, 0]) / h[0]))
+        iy = int(np.floor((py - lo[0, 1]) / h[0]))
+        iz = int(np.floor((pz - lo[0, 2]) / h[0]))
+        found[q] = False
+        cost[q] = np.inf
+        if 0 <= ix < shape[0, 0] and 0 <= iy < shape[0, 1] and 0 <= iz < shape[0, 2]:
+            cell = (ix * shape[0, 1] + iy) * shape[0, 2] + iz
+            found[q], cost[q], _ = _near_list(near, tri, nrm, cell, px, py, pz, N[q, 0], N[q, 1], N[q, 2], w)
+
+
+def near_list_costs(grid: CandidateGrid, P, N):
+    """The normal-keyed lists' answers alone, for tests and diagnostics: (found, cost), where
+    ``found`` marks the queries whose cell and normal bin have a list (cost: m^2, as
+    :func:`query_grid`; inf elsewhere)."""
+    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    N = np.ascontiguousarray(N, dtype=np.float64).reshape(-1, 3)
+    found = np.zeros(len(P), np.bool_)
+    cost = np.full(len(P), np.inf)
+    _near_query(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape, grid.near, P, N, grid.w, found, cost)
+    return found, cost
+
+
+#: The lists' check: queries at surface points moved by sigma_pos along the normal, with
+#: normals sigma_nor off; where more of the near lists' answers exceed the exact cost by
+#: more than NEAR_CHECK_ERROR (d_M^2) than NEAR_CHECK_SHARE and than the general lists'
+#: answers do, the mesh keeps no near lists.
+NEAR_CHECK_QUERIES = 20_000
+NEAR_CHECK_ERROR = 0.1
+NEAR_CHECK_SHARE = 0.01
+
+
+def near_check_queries(tree: BVH, w: float, sigma2: float, n: int = NEAR_CHECK_QUERIES, seed: int = 0):
+    """Object-frame queries like those of a pose near the truth: points drawn uniformly on
+    the surface and moved by N(0, sigma_pos) along their face's normal, and that normal
+    turned by about sigma_nor (sigma_nor^2 = sigma_pos^2 / w)."""
+    rng = np.random.default_rng(seed)
+    tri = tree.tri
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    f = rng.choice(len(tri), n, p=area / area.sum())
+    a, b = rng.random((2, n))
+    flip = a + b > 1.0
+    a[flip], b[flip] = 1.0 - a[flip], 1.0 - b[flip]
+    P = tri[f, 0] + a[:, None] * (tri[f, 1] - tri[f, 0]) + b[:, None] * (tri[f, 2] - tri[f, 0])
+    P = P + tree.nrm[f] * rng.normal(scale=np.sqrt(sigma2), size=(n, 1))
+    N = tree.nrm[f] + rng.normal(scale=np.sqrt(sigma2 / w / 2.0), size=(n, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    return np.ascontiguousarray(P), np.ascontiguousarray(N)
+
+
+@nb.njit(parallel=True, **_NB)
+def _bvh_query_costs(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P, N, w, out):
+    for q in nb.prange(P.shape[0]):
+        out[q], _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                      P[q, 0], P[q, 1], P[q, 2], N[q, 0], N[q, 1], N[q, 2], w, np.inf)
+
+
+def _near_tuple(d):
+    return (d["near_cells"], d["near_off"], d["near_ids"], d["planes"])
+
+
+def no_near_lists():
+    """The near-list fields of a grid without them."""
+    return dict(near_cells=np.zeros((0, 8), np.uint64), near_off=np.zeros(1, np.int32),
+                near_ids=np.zeros(0, np.int32), planes=np.zeros((1, 16)))
+
+
+# ---------------------------------------------------------------------------------------
 # candidate grid (the "fast" method)
 @dataclass(frozen=True)
 class CandidateGrid:
@@ -442,6 +841,20 @@ class CandidateGrid:
     adj_off: np.ndarray  # (F+1,) CSR offsets of vertex-adjacent faces (tree order)
     adj: np.ndarray
     longest: int  # the longest cell list (the width of a query's scratch row)
+    # normal-keyed lists of the finest level's cells near the surface (build_near_lists)
+    near_cells: np.ndarray
+    near_off: np.ndarray
+    near_ids: np.ndarray
+    planes: np.ndarray
+    # their check against the exact method (build_candidate_grid): share of the queries
+    # answered, share off by more than NEAR_CHECK_ERROR, 99th percentile of the error, the
+    # share off for the general lists, and whether the near lists were kept (1) or dropped
+    near_check: np.ndarray
+
+    @property
+    def near(self) -> tuple:
+        """The near lists as the kernels take them."""
+        return _near_tuple(self.__dict__)
 
     def scratch(self) -> np.ndarray:
         """One scratch row per numba thread for the lists' bounds (see :func:`_list_best`)."""
@@ -449,11 +862,13 @@ class CandidateGrid:
 
 
 @nb.njit(inline="always", **_NB)
-def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py, pz, nx, ny, nz, w, descend,
+def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near, px, py, pz, nx, ny, nz, w, descend,
                best, buf):
     """The best face of the point's cell list (and the greedy descent from it) below ``best``.
 
-    The cell is that of the finest level whose box holds the point. Returns (listed, cost,
+    The cell is that of the finest level whose box holds the point. In a finest-level cell
+    near the surface, with a normal whose bin has a list there (``near``, see
+    :func:`build_near_lists`), that short list answers alone. Returns (listed, cost,
     face): ``listed`` is False outside every level or in a cell without a list; ``face``
     is -1 (and ``cost`` the given ``best``) when no listed face is below it. ``buf`` holds
     at least the cell's list length: the first pass keeps each face's bound there for the
@@ -467,6 +882,12 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py,
         iz = int(np.floor((pz - lo[lvl, 2]) / h[lvl]))
         if 0 <= ix < shape[lvl, 0] and 0 <= iy < shape[lvl, 1] and 0 <= iz < shape[lvl, 2]:
             cell = base[lvl] + (ix * shape[lvl, 1] + iy) * shape[lvl, 2] + iz
+            if lvl == 0 and w > 0.0:
+                found, c, f = _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w)
+                if found:
+                    if c < best:
+                        return True, c, f
+                    return True, best, bf
             break
     if cell < 0 or offsets[cell + 1] <= offsets[cell]:
         return False, best, bf
@@ -514,9 +935,9 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, px, py,
 
 
 @nb.njit(inline="always", **_NB)
-def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
               plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, buf):
-    listed, best, bf = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+    listed, best, bf = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                                   px, py, pz, nx, ny, nz, w, descend, np.inf, buf)
     if not listed:  # outside the grid, or a cell too crowded to list: exact through the tree
         best, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
@@ -525,7 +946,7 @@ def _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
 
 
 @nb.njit(parallel=True, **_NB)
-def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                 plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend, buf):
     Q = P.shape[0]
     cost = np.empty(Q)
@@ -535,14 +956,14 @@ def _grid_query(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
         row = buf[nb.get_thread_id()]
-        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                                      plo, phi, nlo, nhi, left, right, start, count,
                                      P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend, row)
     return face, cost
 
 
 @nb.njit(**_SERIAL)
-def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                        plo, phi, nlo, nhi, left, right, start, count, P, N, w, use_n, descend, buf):
     Q = P.shape[0]
     cost = np.empty(Q)
@@ -552,7 +973,7 @@ def _grid_query_serial(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
         if use_n:
             nx, ny, nz = N[q, 0], N[q, 1], N[q, 2]
         row = buf[nb.get_thread_id()]
-        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+        cost[q], face[q] = _grid_one(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                                      plo, phi, nlo, nhi, left, right, start, count,
                                      P[q, 0], P[q, 1], P[q, 2], nx, ny, nz, w, descend, row)
     return face, cost
@@ -619,12 +1040,14 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 
 def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
-                         max_list: int = 48) -> CandidateGrid:
+                         max_list: int = 48, sigma2: float | None = None) -> CandidateGrid:
     """Precompute the candidate lists of every cell of each level.
 
     ``levels``: (lo, hi, cell) per level, finest first; a query uses the finest level
     whose box holds it. Joint cost (w > 0): a cell lists the winners at its centre for
-    ``n_normals`` directions and the closest face. Position only: every face that can be
+    ``n_normals`` directions and the closest face; with ``sigma2`` (sigma_pos^2, the unit
+    of d_M^2) the finest level's cells near the surface also get lists keyed by the
+    query's normal (:func:`build_near_lists`). Position only: every face that can be
     closest in the cell, or an empty list (meaning: use the exact tree) when more than
     ``max_list`` qualify.
     """
@@ -667,9 +1090,29 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
     np.cumsum(counts, out=offsets[1:])
     base = np.concatenate([[0], np.cumsum([len(c) for c in counts_all])[:-1]]).astype(np.int64)
     adj_off, adj = tree_adjacency(tree)
-    return CandidateGrid(lo=np.array(los), h=np.array(hs), shape=np.array(shapes, np.int64), base=base,
+    grid = CandidateGrid(lo=np.array(los), h=np.array(hs), shape=np.array(shapes, np.int64), base=base,
                          offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
-                         w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0)
+                         w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0,
+                         **no_near_lists(), near_check=np.zeros(5))
+    if w > 0 and sigma2 is not None:
+        near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2))
+        grid = dataclasses.replace(grid, **near)
+        # their own check against the exact method, beside the general lists': where they are
+        # off more often than the general lists (faces small against the cells, whose winners
+        # change between the samples) and than NEAR_CHECK_SHARE, they are dropped
+        P, N = near_check_queries(tree, w, float(sigma2))
+        exact = np.empty(len(P))
+        _bvh_query_costs(*args, P, N, float(w), exact)
+        found, cost = near_list_costs(grid, P, N)
+        err = (cost[found] - exact[found]) / sigma2
+        _, general = query_grid(dataclasses.replace(grid, **no_near_lists()), tree, P, N)
+        near_off = float(np.mean(err > NEAR_CHECK_ERROR)) if found.any() else 0.0
+        general_off = float(np.mean((general - exact) / sigma2 > NEAR_CHECK_ERROR))
+        keep = near_off <= max(NEAR_CHECK_SHARE, general_off)
+        check = np.array([found.mean(), near_off, np.percentile(err, 99) if found.any() else 0.0, general_off,
+                          float(keep)])
+        grid = dataclasses.replace(grid, near_check=check, **({} if keep else no_near_lists()))
+    return grid
 
 
 def tree_adjacency(tree: BVH):
@@ -714,7 +1157,7 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
         return np.zeros(0, np.int64), np.zeros(0)
     kernel = _grid_query if len(P) >= PARALLEL_MIN else _grid_query_serial
     f, c = kernel(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off,
-                  grid.adj, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count,
+                  grid.adj, grid.near, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count,
                   P, Nn, grid.w if use_n else 0.0, use_n, use_n, grid.scratch())
     return tree.face_id[f], c
 
@@ -726,12 +1169,12 @@ EXACT, GRID = 0, 1
 
 
 @nb.njit(inline="always", **_NB)
-def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+def _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz, w, descend, rem, buf):
     """min(cost, rem) of one object-frame query (rem: what the pose has left of its budget)."""
     if mode == GRID:
         # the list's own answer whatever the budget (the descent starts from its best face)
-        listed, best, _ = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+        listed, best, _ = _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                                      px, py, pz, nx, ny, nz, w, descend, np.inf, buf)
         if listed:
             return min(best, rem)
@@ -760,7 +1203,7 @@ def object_frame(poses, i, P, N, k, use_n):
 
 @nb.njit(inline="always", **_NB)
 def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
-              ids, adj_off, adj, bvh, out, buf):
+              ids, adj_off, adj, near, bvh, out, buf):
     """Costs of pose i for every contact, each at most ``cap``, in order, until they reach
     the pose's budget.
 
@@ -797,7 +1240,7 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
         px, py, pz, nx, ny, nz = object_frame(poses, i, P, N, k, use_n)
         rem = b - s - after
         # a capped pair never needs its search beyond the cap, and never ends the row
-        c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj,
+        c = _pair_cost(mode, tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near,
                        plo, phi, nlo, nhi, left, right, start, count, px, py, pz, nx, ny, nz,
                        w if use_n else 0.0, use_n, min(rem, cap), buf)
         out[i, k] = c
@@ -812,27 +1255,27 @@ def _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri
 
 @nb.njit(parallel=True, **_NB)
 def _pose_costs(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base, offsets,
-                ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, buf):
+                ids, adj_off, adj, near, plo, phi, nlo, nhi, left, right, start, count, buf):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     bvh = (plo, phi, nlo, nhi, left, right, start, count)
     for i in nb.prange(n):
         done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
-                            base, offsets, ids, adj_off, adj, bvh, out, buf[nb.get_thread_id()])
+                            base, offsets, ids, adj_off, adj, near, bvh, out, buf[nb.get_thread_id()])
     return out, done
 
 
 @nb.njit(**_SERIAL)
 def _pose_costs_serial(mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape, base,
-                       offsets, ids, adj_off, adj, plo, phi, nlo, nhi, left, right, start, count, buf):
+                       offsets, ids, adj_off, adj, near, plo, phi, nlo, nhi, left, right, start, count, buf):
     n = poses.shape[0]
     out = np.empty((n, P.shape[0]))
     done = np.empty(n, np.bool_)
     bvh = (plo, phi, nlo, nhi, left, right, start, count)
     for i in range(n):
         done[i] = _pose_row(i, mode, poses, P, N, use_n, w, budget, cap, lower, use_lower, tri, nrm, lo, h, shape,
-                            base, offsets, ids, adj_off, adj, bvh, out, buf[nb.get_thread_id()])
+                            base, offsets, ids, adj_off, adj, near, bvh, out, buf[nb.get_thread_id()])
     return out, done
 
 
@@ -845,7 +1288,7 @@ def _no_grid():
     if _NO_GRID is None:
         z = np.zeros(1, np.int64)
         _NO_GRID = (np.zeros((1, 3)), np.ones(1), np.zeros((1, 3), np.int64), z, np.zeros(2, np.int64), z,
-                    np.zeros(2, np.int64), z)
+                    np.zeros(2, np.int64), z, _near_tuple(no_near_lists()))
     return _NO_GRID
 
 
@@ -895,7 +1338,7 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
         buf = np.empty((nb.config.NUMBA_NUM_THREADS, 1))  # never read
     else:
         mode = GRID
-        g = (grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off, grid.adj)
+        g = (grid.lo, grid.h, grid.shape, grid.base, grid.offsets, grid.ids, grid.adj_off, grid.adj, grid.near)
         buf = grid.scratch()
     if n == 0 or len(P) == 0:
         return np.zeros((n, len(P))), np.ones(n, bool)

@@ -92,10 +92,18 @@ class ProximityModel(MeasurementModel):
 
     Notes
     -----
-    The fast method lists, per grid cell, the faces that minimise the joint cost at the
-    cell centre for ``grid_normals`` normal directions (and the closest face in
-    position), minimises over that list, and then walks to neighbouring faces while the
-    cost falls. For joint costs the grid has three nested levels: the finest over the
+    The fast method first looks, for a query near the surface, in a short list keyed by
+    both its cell and its normal: the finest level's cells within three cells of the
+    surface list, for each of 384 normal bins (a cube map) in which the cost can be low
+    (below 25 d_M^2 at a sample), the faces that win at the cell's corners for the bin's
+    centre, corners and edge midpoints. Built once per mesh and ``sigma_pos``, the lists
+    check themselves against the exact method on 20,000 queries like those of a pose near
+    the truth; where more than 1 % of their answers are off by more than 0.1 d_M^2 (faces
+    small against the cells, such as a finely tessellated smooth mesh), the mesh keeps
+    none (``_grid(w).near_check`` holds the check). Every other query uses the cell's general list: the faces that minimise the joint
+    cost at the cell centre for ``grid_normals`` normal directions (and the closest face
+    in position), minimised over, and then a walk to neighbouring faces while the cost
+    falls. For joint costs the grid has three nested levels: the finest over the
     mesh bounds plus ``grid_margin``, then cells 4x and 16x as large reaching 2 and 8
     largest extents beyond the bounds (:data:`COARSE_LEVELS`), so that the far-off
     contacts of a wrongly placed pose are listed too; beyond them the exact tree answers. The result
@@ -148,7 +156,7 @@ class ProximityModel(MeasurementModel):
         return (self.sigma_pos / self.sigma_nor) ** 2
 
     def _grid(self, w: float) -> K.CandidateGrid:
-        key = ("grid", w, self.grid_cell, self.grid_margin, self.grid_normals)
+        key = ("grid", w, self.grid_cell, self.grid_margin, self.grid_normals, self.sigma_pos if w > 0 else None)
         grid = self.obj._cache.get(key)
         if grid is None:
             lo, hi = self.obj.bounds
@@ -157,10 +165,13 @@ class ProximityModel(MeasurementModel):
             if w > 0:  # position-only lists of large far cells are too crowded to keep
                 levels += [(lo - r * ext, hi + r * ext, f * self.grid_cell) for r, f in COARSE_LEVELS]
             tree = self.obj.bvh(w)
+            # the lists keyed by the query's normal take their costs in d_M^2
+            sigma2 = self.sigma_pos**2 if w > 0 else None
             grid = cached_structure(  # on disk: keyed by mesh content, parameters and builder code
                 "candidate_grid", self.obj, dict(w=w, levels=np.array([np.r_[a, b, c] for a, b, c in levels]),
-                                                  normals=self.grid_normals, tree_order=tree.face_id),
-                lambda: K.build_candidate_grid(tree, levels, w, self.grid_normals),
+                                                  normals=self.grid_normals, tree_order=tree.face_id,
+                                                  sigma2=-1.0 if sigma2 is None else sigma2),
+                lambda: K.build_candidate_grid(tree, levels, w, self.grid_normals, sigma2=sigma2),
                 K.CandidateGrid, code=(K,))
             self.obj._cache[key] = grid
         return grid
