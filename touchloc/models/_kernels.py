@@ -226,6 +226,18 @@ def _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w):
 
 
 @nb.njit(inline="always", **_NB)
+def _try_face(tri, nrm, f, px, py, pz, nx, ny, nz, w, best, bf):
+    """(best cost, its face) after trying face f: its closest point only where its plane's
+    bound does not already rule it out."""
+    if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= best:
+        return best, bf
+    c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+    if c < best:
+        return c, f
+    return best, bf
+
+
+@nb.njit(inline="always", **_NB)
 def _box_d2(x, y, z, lo, hi, i):
     d = 0.0
     if x < lo[i, 0]:
@@ -640,13 +652,7 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
                 c = bound
                 bf = -1
                 for j in range(k):
-                    f = cand[j]
-                    if _face_lb(tri, nrm, f, px, py, pz, nx, ny, nz, w) >= c:
-                        continue
-                    cf, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
-                    if cf < c:
-                        c = cf
-                        bf = f
+                    c, bf = _try_face(tri, nrm, cand[j], px, py, pz, nx, ny, nz, w, c, bf)
             cost[i, d] = c
             face[i, d] = bf
 
@@ -919,17 +925,10 @@ def _list_best(tri, nrm, lo, h, shape, base, offsets, ids, adj_off, adj, near, p
         # greedy descent over vertex-adjacent faces: on smooth surfaces the face
         # whose normal best matches lies a few faces away from a sampled winner
         for _ in range(256):
-            moved = False
-            for j in range(adj_off[bf], adj_off[bf + 1]):
-                g = adj[j]
-                if _face_lb(tri, nrm, g, px, py, pz, nx, ny, nz, w) >= best:
-                    continue
-                c, _, _, _ = _face_cost(tri, nrm, g, px, py, pz, nx, ny, nz, w)
-                if c < best:
-                    best = c
-                    bf = g
-                    moved = True
-            if not moved:
+            start_face = bf
+            for j in range(adj_off[start_face], adj_off[start_face + 1]):
+                best, bf = _try_face(tri, nrm, adj[j], px, py, pz, nx, ny, nz, w, best, bf)
+            if bf == start_face:
                 break
     return True, best, bf
 

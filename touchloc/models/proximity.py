@@ -19,7 +19,7 @@ __all__ = ["ProximityModel", "contacts_in_object_frame"]
 METHODS = ("exact", "fast", "bruteforce", "auto")
 
 #: ``auto`` switches to the precomputed grid when a call has at least this many
-#: pose-contact pairs. One such call does not pay for the grid's one-off build (0.3-10 s on
+#: pose-contact pairs. One such call does not pay for the grid's one-off build (1-20 s on
 #: the bundled meshes, then kept on disk), but an estimator makes tens of them: a Scaling
 #: Series posterior stage is 500 poses x K contacts per pass, a 2000-particle filter's
 #: update 2000 x K. Smaller calls (a few poses) stay exact and build nothing.
