@@ -182,5 +182,4 @@ def test_warm_builds_every_per_mesh_structure_a_timed_trial_would_need():
     warm([("cereal", 0.002, 0.1)])
     model = _model({"mesh": "cereal", "sigma_pos": 0.002, "sigma_nor": 0.1})
     w = model._weight(True)
-    assert {("grid", w, model.grid_cell, model.grid_margin, model.grid_normals), ("cost_bound", w)} \
-        <= set(model.obj._cache)
+    assert {model._grid_key(w), ("cost_bound", w)} <= set(model.obj._cache)

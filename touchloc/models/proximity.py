@@ -155,8 +155,13 @@ class ProximityModel(MeasurementModel):
             return 0.0
         return (self.sigma_pos / self.sigma_nor) ** 2
 
+    def _grid_key(self, w: float) -> tuple:
+        """The key of :meth:`_grid`'s structure in the mesh's cache (the near lists of a
+        joint grid take their costs in d_M^2, so it holds ``sigma_pos`` too)."""
+        return ("grid", w, self.grid_cell, self.grid_margin, self.grid_normals, self.sigma_pos if w > 0 else None)
+
     def _grid(self, w: float) -> K.CandidateGrid:
-        key = ("grid", w, self.grid_cell, self.grid_margin, self.grid_normals, self.sigma_pos if w > 0 else None)
+        key = self._grid_key(w)
         grid = self.obj._cache.get(key)
         if grid is None:
             lo, hi = self.obj.bounds
