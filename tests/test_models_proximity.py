@@ -297,6 +297,22 @@ def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
     assert err.min() > -1e-9 and np.mean(err > 0.1) < 0.005
 
 
+def test_near_lists_are_not_built_where_faces_crowd_a_samples_reach():
+    """Faces small against a sample's reach (a 5120-face sphere at 5 mm of noise: hundreds
+    within it) would make a long build of lists that fail their check: none is built."""
+    from touchloc.models import MeshObject
+    from touchloc.models import _kernels as K
+
+    obj = MeshObject(trimesh.creation.icosphere(subdivisions=4, radius=0.05), name="sphere")
+    model = ProximityModel(obj, 0.005, 0.1)
+    w = model._weight(True)
+    grid = model._grid(w)
+    assert len(grid.near_cells) == 0 and (grid.near_check == 0).all()
+    lo, hi = obj.bounds
+    shape = np.ceil((hi - lo + 2 * model.grid_margin) / model.grid_cell).astype(np.int64)
+    assert K.build_near_lists(obj.bvh(w), lo - model.grid_margin, model.grid_cell, shape, w, 0.005**2) is None
+
+
 def test_auto_uses_the_grid_from_its_pair_threshold_and_not_below(objects, rng):
     from touchloc.models.proximity import AUTO_FAST_PAIRS
 

@@ -606,8 +606,45 @@ def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
     return True, best, bf
 
 
-#: a sample point with more faces than this within the sample bound queries the tree
+#: a sample point with more faces than this within the sample bound queries the tree; a
+#: mesh whose sample points mostly are this crowded gets no near lists (below)
 _NEAR_CROWD = 256
+
+
+@nb.njit(inline="always", **_NB)
+def _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, r2, cand):
+    """The faces closer to the point than sqrt(r2) into ``cand`` (as many as it holds);
+    returns how many there are, counted up to one more than it holds."""
+    k = 0
+    stack = np.empty(_STACK, np.int64)
+    sp = 1
+    stack[0] = 0
+    while sp > 0 and k <= cand.shape[0]:
+        sp -= 1
+        node = stack[sp]
+        if _box_d2(px, py, pz, plo, phi, node) >= r2:
+            continue
+        if left[node] < 0:
+            for f in range(start[node], start[node] + count[node]):
+                d2, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, 0.0, 0.0, 0.0, 0.0)
+                if d2 < r2:
+                    if k < cand.shape[0]:
+                        cand[k] = f
+                    k += 1
+        else:
+            stack[sp] = left[node]
+            stack[sp + 1] = right[node]
+            sp += 2
+    return k
+
+
+@nb.njit(parallel=True, **_NB)
+def _near_crowding(tri, nrm, plo, phi, left, right, start, count, pts, r2, out):
+    """How many faces lie within sqrt(r2) of each point (up to :data:`_NEAR_CROWD` + 1)."""
+    for i in nb.prange(pts.shape[0]):
+        cand = np.empty(_NEAR_CROWD, np.int64)
+        out[i] = _faces_within(tri, nrm, plo, phi, left, right, start, count, pts[i, 0], pts[i, 1], pts[i, 2],
+                               r2, cand)
 
 
 @nb.njit(parallel=True, **_NB)
@@ -619,30 +656,10 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
     point first gathers the faces within that distance and scores every direction over
     them alone (the tree's query where they are more than :data:`_NEAR_CROWD`).
     """
-    r2 = bound
     for i in nb.prange(pts.shape[0]):
         px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
         cand = np.empty(_NEAR_CROWD, np.int64)
-        k = 0
-        stack = np.empty(_STACK, np.int64)
-        sp = 1
-        stack[0] = 0
-        while sp > 0 and k <= _NEAR_CROWD:
-            sp -= 1
-            node = stack[sp]
-            if _box_d2(px, py, pz, plo, phi, node) >= r2:
-                continue
-            if left[node] < 0:
-                for f in range(start[node], start[node] + count[node]):
-                    d2, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, 0.0, 0.0, 0.0, 0.0)
-                    if d2 < r2:
-                        if k < _NEAR_CROWD:
-                            cand[k] = f
-                        k += 1
-            else:
-                stack[sp] = left[node]
-                stack[sp + 1] = right[node]
-                sp += 2
+        k = _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, bound, cand)
         for d in range(dirs.shape[0]):
             nx, ny, nz = dirs[d, 0], dirs[d, 1], dirs[d, 2]
             if k > _NEAR_CROWD:
@@ -709,8 +726,9 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float)
     A cell whose centre lies within :data:`NEAR_REACH` cells of the surface is sampled at
     its 8 corners, each for the centre and 4 corners of every cube-map bin; a (cell, bin)
     in which some sample costs less than :data:`NEAR_COST` (d_M^2 at ``sigma2``) lists the
-    distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`. Returns the
-    :class:`CandidateGrid` fields ``near_cells`` (cells, 8) uint64 (per cell of the level:
+    distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`. Returns None
+    for a mesh whose sample points mostly have more than :data:`_NEAR_CROWD` faces within
+    that cost's reach, else the :class:`CandidateGrid` fields ``near_cells`` (cells, 8) uint64 (per cell of the level:
     6 words, bit b of word s set where side s's bin b has a list, then the entry of its
     first list), ``near_off`` and ``near_ids`` (the lists, tree-order faces) and
     ``planes`` (:func:`face_planes`).
@@ -730,11 +748,18 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float)
                                            for o in np.ndindex(2, 2, 2)])) if len(cells) else np.zeros(0, np.int64)
     cidx = np.full(int(np.prod(S)), -1, np.int64)
     cidx[corner_ids] = np.arange(len(corner_ids))
-    pts = lo + np.stack(np.unravel_index(corner_ids, tuple(S)), axis=1) * cell
+    pts = np.ascontiguousarray(lo + np.stack(np.unravel_index(corner_ids, tuple(S)), axis=1) * cell)
+    # faces small against the cells: too many within a sample's reach, whose winners change
+    # between the samples (the lists would fail their check, after a long build)
+    crowd = np.empty(min(len(pts), 400), np.int64)
+    _near_crowding(tree.tri, tree.nrm, tree.plo, tree.phi, tree.left, tree.right, tree.start, tree.count,
+                   pts[np.linspace(0, len(pts) - 1, len(crowd)).astype(np.int64)], NEAR_SAMPLE_COST * sigma2, crowd)
+    if len(crowd) and np.median(crowd) > _NEAR_CROWD:
+        return None
     dirs, corners = cube_bin_directions()
     cost = np.empty((len(pts), len(dirs)))
     face = np.empty((len(pts), len(dirs)), np.int64)
-    _near_samples(*args, np.ascontiguousarray(pts), dirs, float(w), NEAR_SAMPLE_COST * sigma2, cost, face)
+    _near_samples(*args, pts, dirs, float(w), NEAR_SAMPLE_COST * sigma2, cost, face)
     relevant = NEAR_COST * sigma2
     counts = np.zeros((len(cells), len(corners)), np.int64)
     _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts)
@@ -854,7 +879,8 @@ class CandidateGrid:
     planes: np.ndarray
     # their check against the exact method (build_candidate_grid): share of the queries
     # answered, share off by more than NEAR_CHECK_ERROR, 99th percentile of the error, the
-    # share off for the general lists, and whether the near lists were kept (1) or dropped
+    # share off for the general lists, and whether the near lists were kept (1) or dropped;
+    # all zero where none were built (position only, or faces crowded in a sample's reach)
     near_check: np.ndarray
 
     @property
@@ -1093,8 +1119,9 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
                          offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
                          w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0,
                          **no_near_lists(), near_check=np.zeros(5))
-    if w > 0 and sigma2 is not None:
-        near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2))
+    near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2)) \
+        if w > 0 and sigma2 is not None else None
+    if near is not None:
         grid = dataclasses.replace(grid, **near)
         # their own check against the exact method, beside the general lists': where they are
         # off more often than the general lists (faces small against the cells, whose winners
