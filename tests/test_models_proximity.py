@@ -548,3 +548,41 @@ def test_costs_stopped_by_their_bounds_still_reach_the_budget(objects, rng):
         # the bounds stop some poses without a single search, and the rest earlier
         assert np.any(np.all(got[~done] == lower[~done], axis=1))
         assert np.count_nonzero(got[~done] != lower[~done]) < np.count_nonzero(plain[~done])
+
+
+def test_kernels_compile_one_signature_whatever_the_inputs_flags_and_layout(objects, rng):
+    # numba types an array by its layout and its read-only flag: a frozen Contacts, a
+    # transposed copy or a read-only pose batch must not compile a kernel a second time
+    # (minutes for the likelihood kernels)
+    from touchloc.models import IntegratedProximityModel, _bounds, _kernels, integrated
+
+    obj = objects["milk"]
+    poses = random_poses(rng, 600, half=0.01)
+    c = noisy_contacts(obj, rng, 8, np.eye(4))
+    assert not c.points.flags.writeable
+    frozen = poses.copy()
+    frozen.flags.writeable = False
+    fortran = np.asfortranarray(poses)
+    P_strided = np.repeat(c.points, 2, axis=0)[::2]
+    N_frozen = c.normals.copy()
+    N_frozen.flags.writeable = False
+    joint, pos = ProximityModel(obj, 0.002, 0.2), ProximityModel(obj, 0.002, None)
+    expected = {}
+    for model in (joint, pos):
+        for method in ("exact", "fast"):
+            ref = model.contact_costs(poses, Contacts(c.points.copy(), c.normals.copy()), method=method)
+            for P in (poses, frozen, fortran, poses[::1], poses[:7]):
+                got = model.contact_costs(P, c, method=method)
+                np.testing.assert_array_equal(got, ref[:len(P)])
+            q = model.query_costs(P_strided, N_frozen, method=method)
+            expected[(id(model), method)] = q
+            np.testing.assert_array_equal(q, model.query_costs(P_strided.copy(), c.normals.copy(), method=method))
+        model._lower_costs(frozen, c)
+    IntegratedProximityModel(obj, 0.002, 0.2, spacing=0.01).query_log_density(P_strided, N_frozen)
+    many = {}
+    for mod in (_kernels, _bounds, integrated):
+        for name in dir(mod):
+            f = getattr(mod, name)
+            if hasattr(f, "signatures") and len(f.signatures) > 1:
+                many[f"{mod.__name__}.{name}"] = [str(s) for s in f.signatures]
+    assert not many, many

@@ -29,7 +29,7 @@ import numpy as np
 
 from .._cache import numba_cache_enabled
 from .._util import progress
-from ._kernels import PARALLEL_MIN, object_frame, query_joint
+from ._kernels import PARALLEL_MIN, kernel_array, object_frame, query_joint
 
 __all__ = ["CostBound", "build_cost_bound", "lower_costs"]
 
@@ -146,10 +146,10 @@ def _lower_costs_serial(poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_l
 def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf) -> np.ndarray:
     """(n, K) lower bounds (m^2, each at most ``cap``) of the joint costs of world contacts
     ``P`` (K, 3), ``N`` (K, 3) or None, seen from each pose (n, 4, 4; trusted)."""
-    poses = np.ascontiguousarray(poses, dtype=np.float64)
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    poses = kernel_array(poses)
+    P = kernel_array(P).reshape(-1, 3)
     use_n = N is not None and bound.w > 0
-    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
     kernel = _lower_costs if len(poses) * len(P) >= PARALLEL_MIN else _lower_costs_serial
     return kernel(poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
                   bound.box_lo, bound.box_hi, float(bound.w), BINS)

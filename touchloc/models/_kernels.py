@@ -59,6 +59,19 @@ warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified 
 PARALLEL_MIN = 4096
 
 
+def kernel_array(a, dtype=np.float64):
+    """``a`` as the kernels take every array: C-contiguous, ``dtype`` and writeable.
+
+    numba compiles a kernel once per signature, and an array's layout and its read-only
+    flag are part of the signature: a read-only input (a :class:`Contacts`' frozen points,
+    an array loaded read-only) would compile the whole kernel a second time, which takes
+    minutes. Converting here keeps one signature per kernel; a read-only input is copied
+    (the arrays passed this way are contacts, poses and per-pose rows, small beside the
+    work done on them).
+    """
+    return np.require(a, dtype, ("C", "W"))
+
+
 class _ThreadChoice:
     """Picks the one-thread or the parallel version of a kernel for calls of middling size
     by their measured speed.
@@ -106,10 +119,17 @@ class _ThreadChoice:
 POSE_COSTS_THREADS = _ThreadChoice(512, PARALLEL_MIN)
 
 
-
 # ---------------------------------------------------------------------------------------
 # geometry
-@nb.njit(inline="always", **_NB)
+#
+# Inlining. The small helpers below are inlined into their callers in numba's IR
+# (``inline="always"``): a call that passes arrays costs a reference count on each, which
+# made the exact tree's query 1.5-2.4x slower when its descent was a call. The closest
+# point on a triangle is the exception: it takes and returns scalars, so a call costs next
+# to nothing, while its body, inlined into the five places each likelihood kernel reaches
+# it, made the kernels' compilation 1.7x longer (355 s against 209 s for every kernel on
+# one core of the reference machine; query times unchanged within the noise).
+@nb.njit(**_NB)
 def _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection 5.1.5)."""
     abx, aby, abz = bx - ax, by - ay, bz - az
@@ -282,10 +302,10 @@ def _bruteforce(tri, nrm, P, N, w, use_n):
 
 def query_bruteforce(triangles, normals, P, N, w):
     """Reference evaluation over every face. Returns (face (Q,), cost (Q,))."""
-    P = np.ascontiguousarray(P, dtype=np.float64)
+    P = kernel_array(P)
     use_n = N is not None and w > 0
-    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
-    return _bruteforce(np.ascontiguousarray(triangles), np.ascontiguousarray(normals), P, Nn, float(w), use_n)
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
+    return _bruteforce(kernel_array(triangles), kernel_array(normals), P, Nn, float(w), use_n)
 
 
 # ---------------------------------------------------------------------------------------
@@ -479,10 +499,10 @@ def query_joint(tree: BVH, P, N, wp: float, wn: float):
     Returns face (Q,) original face indices, cost (Q,) = |p-q|^2 + (wn/wp)|n-n_f|^2 (m^2)
     and closest (Q, 3) closest points on the winning faces.
     """
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    P = kernel_array(P).reshape(-1, 3)
     w = 0.0 if (N is None or wn == 0) else float(wn / wp)
     use_n = w > 0
-    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3))
     kernel = _bvh_query if len(P) >= PARALLEL_MIN else _bvh_query_serial
@@ -801,8 +821,8 @@ def near_list_costs(grid: CandidateGrid, P, N):
     """The normal-keyed lists' answers alone, for tests and diagnostics: (found, cost), where
     ``found`` marks the queries whose cell and normal bin have a list (cost: m^2, as
     :func:`query_grid`; inf elsewhere)."""
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
-    N = np.ascontiguousarray(N, dtype=np.float64).reshape(-1, 3)
+    P = kernel_array(P).reshape(-1, 3)
+    N = kernel_array(N).reshape(-1, 3)
     found = np.zeros(len(P), np.bool_)
     cost = np.full(len(P), np.inf)
     _near_query(grid.tri, grid.nrm, grid.lo, grid.h, grid.shape, grid.near, P, N, grid.w, found, cost)
@@ -1176,9 +1196,9 @@ def query_grid(grid: CandidateGrid, tree: BVH, P, N):
 
     Returns face (Q,) original face indices and cost (Q,) as in :func:`query_joint`.
     """
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    P = kernel_array(P).reshape(-1, 3)
     use_n = grid.w > 0 and N is not None
-    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
     if len(P) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
     kernel = _grid_query if len(P) >= PARALLEL_MIN else _grid_query_serial
@@ -1352,12 +1372,12 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     done : (n,) bool
         False for the poses stopped by their budget.
     """
-    poses = np.ascontiguousarray(poses, dtype=np.float64)
-    P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+    poses = kernel_array(poses)
+    P = kernel_array(P).reshape(-1, 3)
     use_n = N is not None and w > 0
-    Nn = np.ascontiguousarray(N if use_n else np.zeros((1, 3)), dtype=np.float64)
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
     n = len(poses)
-    b = np.full(n, np.inf) if budget is None else np.ascontiguousarray(budget, dtype=np.float64).reshape(n)
+    b = np.full(n, np.inf) if budget is None else kernel_array(budget).reshape(n)
     if grid is None:
         mode = EXACT
         g = _no_grid()
@@ -1372,7 +1392,7 @@ def pose_costs(tree: BVH, poses, P, N, w: float, *, grid: CandidateGrid | None =
     which = POSE_COSTS_THREADS.pick(items)
     t0 = time.perf_counter()
     use_lower = lower is not None
-    lo_arr = np.ascontiguousarray(lower, dtype=np.float64).reshape(n, len(P)) if use_lower else np.zeros((1, 1))
+    lo_arr = kernel_array(lower).reshape(n, len(P)) if use_lower else np.zeros((1, 1))
     out = (_pose_costs if which else _pose_costs_serial)(
         mode, poses, P, Nn, use_n, float(w) if use_n else 0.0, b, float(cap), lo_arr, use_lower, tree.tri, tree.nrm, *g,
         tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count, buf)

@@ -9,6 +9,7 @@ from .._cache import numba_cache_enabled
 from .._util import as_poses
 from .._validate import as_callable, as_count, as_positive_float
 from ..errors import ValidationError
+from ._kernels import kernel_array
 from .base import MeasurementModel, check_temperature
 from .mesh import MeshObject
 from .proximity import ProximityModel, _check_contacts, _to_object_frame, check_queries
@@ -145,6 +146,7 @@ class IntegratedProximityModel(MeasurementModel):
         Nr = Nr if use_n else np.zeros((0, 3))
         g = self._grid
         inv_n = 1.0 / self.sigma_nor**2 if use_n else 0.0
+        P, Nr = kernel_array(P), kernel_array(Nr)
         near, dmin2 = _neighbourhood_lse(P, Nr, use_n, g.points, g.normals, g.logw_rel, g.wmax, g.start, g.lo, g.cell,
                                          g.dims, 0.5 / self.sigma_pos**2, inv_n, g.cutoff**2)
         near += self._constant(use_n)
