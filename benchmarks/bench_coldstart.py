@@ -19,12 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import baseline_tree, quiet_load, table
+from _common import ROOT, baseline_tree, quiet_load, table
 
 TITLE = "Cold start: compiled kernels and per-mesh structures on disk"
 
 #: the tree before lazy imports (every subpackage, numba, trimesh and scipy at ``import touchloc``)
 BASELINE = "666723a"
+#: the tree before the kernels' compilation was cut (the closest point on a triangle inlined
+#: into every likelihood kernel; a read-only input compiling a kernel a second time)
+COMPILE_BASELINE = "278fccb"
 
 
 def _child_cpu():
@@ -199,6 +202,29 @@ def run(quick: bool = False) -> str:
             base_rows.insert(2, ("`touchloc localize` until the estimator starts (mesh and contacts read)",
                                  f"{min(bu):.2f}", f"{min(cu):.2f}", f"{min(bu) / min(cu):.1f}x"))
 
+    # compiling every kernel a localisation uses (`touchloc warmup`, empty numba cache), this
+    # tree against COMPILE_BASELINE, each unpacked fresh so that no cache beside its sources
+    # exists; the trees run one after the other
+    comp_rows = []
+    import shutil
+
+    for label, rev in ((f"commit {COMPILE_BASELINE}", COMPILE_BASELINE), ("this tree", "this")):
+        if rev == "this":
+            tree = tmp / "compile-this"
+            shutil.copytree(ROOT / "touchloc", tree / "touchloc", ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            tree = baseline_tree(rev, tmp / f"compile-{rev}")
+        if tree is None:
+            continue
+        env = dict(base, NUMBA_CACHE_DIR=str(tmp / f"numba-compile-{rev}"), TOUCHLOC_CACHE_DIR="off",
+                   PYTHONPATH=str(tree))
+        wall, cpu, text_ = _run([sys.executable, "-c", "import sys; from touchloc.cli import main; "
+                                 "sys.exit(main(['warmup']))"], env)
+        m = re.search(r"compiled (\d+) .*? in ([\d.]+) s", text_)
+        comp_rows.append((label, m.group(1) if m else "-", f"{wall:.1f}", f"{cpu:.1f}"))
+    if len(comp_rows) == 2 and comp_rows[1][2] != "-":
+        comp_rows.append(("ratio (wall)", "", f"{float(comp_rows[0][2]) / float(comp_rows[1][2]):.2f}x", ""))
+
     objs = [quiet_load("mug"), _subdivided_bunny(2)]
     if not quick:
         objs.append(_subdivided_bunny(3))
@@ -228,13 +254,25 @@ def run(quick: bool = False) -> str:
             "starts (numba, scipy.spatial and trimesh make up most of the CPU before the estimator starts).",
             table(("process", f"{BASELINE} CPU s (wall)", "this tree CPU s (wall)", "CPU ratio"), base_rows),
         ]
+    if comp_rows:
+        text += [
+            "Compiling the kernels once per install (`touchloc warmup`: two processes, one for the "
+            "one-thread kernels and one for the parallel ones, then whatever is left; numba's cache "
+            f"empty), this tree against commit {COMPILE_BASELINE}, one after the other in this run. Since "
+            "that commit the closest point on a triangle is a called function instead of being inlined "
+            "in numba's IR into the five places each likelihood kernel reaches it (it takes and returns "
+            "scalars, so the call costs next to nothing: query times equal within the noise), and every "
+            "kernel's array inputs are made C-contiguous and writeable at the boundary, so that a "
+            "read-only input (a `Contacts`' frozen points) no longer compiles the likelihood kernels a "
+            "second time (about 3.5 min, paid in the test suite and by any user whose first call of a "
+            "position-only model came after the warm-up).",
+            table(("tree", "kernels compiled", "wall s", "CPU s"), comp_rows),
+        ]
     text += [
         "Per-mesh set-up of the proximity model (tree and fast candidate grid, default sigmas and grid), "
         "in this process with the kernels loaded: built with the cache off (what every new process paid "
         "before) vs read from the cache. Wall s (CPU s).",
         table(("mesh", "faces", "built s", "loaded s", "ratio", "cache MB"), mesh_rows),
     ]
-    import shutil
-
     shutil.rmtree(tmp, ignore_errors=True)
     return "\n\n".join(text)
