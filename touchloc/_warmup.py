@@ -19,8 +19,8 @@ import numpy as np
 
 __all__ = ["CompileNotice", "warm_kernels", "compile_in_processes", "prepare_models", "SetUp"]
 
-NOTICE = ("touchloc: compiling the numerical kernels; this happens once per install and takes a minute "
-          "or two (`touchloc warmup` does it ahead of time) ...")
+NOTICE = ("touchloc: compiling the numerical kernels; this happens once per install and takes a few "
+          "minutes (`touchloc warmup` does it ahead of time) ...")
 
 
 class CompileNotice:
@@ -160,9 +160,9 @@ def compile_in_processes(*, full: bool = False, jobs: int = 2) -> int:
     when that cache is off or ``jobs`` < 2. Each process writes a kernel's cache files
     whole, so two that compile the same helper do no harm. A worker that fails, dies or
     cannot be started leaves its kernels to :func:`warm_kernels`, which compiles whatever
-    is not cached. On two cores it halves the first compilation (129 s to 69 s on the
-    reference machine); with the kernels already cached it costs the processes' start, a
-    second or two.
+    is not cached. On two cores it nearly halves the first compilation (207 s of CPU in
+    120 s wall on a 2-core machine); with the kernels already cached it costs the
+    processes' start, a second or two.
     """
     import multiprocessing
 
