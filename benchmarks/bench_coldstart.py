@@ -267,6 +267,7 @@ def run(quick: bool = False) -> str:
             "second time (about 3.5 min, paid in the test suite and by any user whose first call of a "
             "position-only model came after the warm-up).",
             table(("tree", "kernels compiled", "wall s", "CPU s"), comp_rows),
+            "Whole localisations against 278fccb, from the change's own measurement (`python benchmarks/ab_speed.py 278fccb --contacts 5,10,30 --meshes mug,milk,lemon,can --trials 6`, 2026-11-27): 0.90-1.20x over the 12 cells, level within the noise (a second run of the 10-contact cells with 10 trials: mug 0.92x, milk 1.19x, can 1.09x; the first had 0.96x, 0.90x, 0.90x); every trial within 5 mm as often as before (71 of 72).",
         ]
     text += [
         "Per-mesh set-up of the proximity model (tree and fast candidate grid, default sigmas and grid), "
