@@ -170,6 +170,63 @@ def test_fast_grid_levels_are_nested_and_list_far_contacts_with_small_relative_e
     assert np.percentile(rel, 99) < 0.01 and rel.max() < 0.5
 
 
+def test_every_cell_lists_the_exact_winners_at_its_centre(objects):
+    """A cell of the joint grid lists, for each sampled normal (and for the closest face in
+    position), a face whose cost at the cell's centre is the exact minimum over all faces:
+    the build gathers the faces within reach of the closest one once per centre and must
+    lose no winner."""
+    from touchloc.models import _kernels as K
+
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, 0.1)
+    w = model._weight(True)
+    tree, grid = obj.bvh(w), model._grid(w)
+    dirs = np.vstack([K.fibonacci_sphere(model.grid_normals), np.zeros((1, 3))])
+    rng = np.random.default_rng(11)
+    for lvl in range(len(grid.h)):
+        shape = tuple(grid.shape[lvl])
+        for c in rng.choice(int(np.prod(shape)), 60, replace=False):
+            centre = grid.lo[lvl] + (np.array(np.unravel_index(c, shape)) + 0.5) * grid.h[lvl]
+            P = np.repeat(centre[None], len(dirs), axis=0)
+            _, best = K.query_bruteforce(tree.tri, tree.nrm, P, dirs, w)
+            cell = grid.base[lvl] + c
+            ids = grid.ids[grid.offsets[cell]:grid.offsets[cell + 1]]
+            _, listed = K.query_bruteforce(tree.tri[ids], tree.nrm[ids], P, dirs, w)
+            assert np.allclose(listed, best, rtol=1e-12, atol=0.0), (lvl, c)
+
+
+def test_near_samples_are_the_exact_winners_below_their_bound(objects, rng):
+    """The near lists' samples: per point and direction, the exact winner where its cost
+    is below the bound, else no face and the bound (points on, near and far from the
+    surface; directions along and against its normals)."""
+    from touchloc.models import _kernels as K
+
+    obj = objects["lemon"]
+    w, bound = 0.002 ** 2 / 0.1 ** 2, 50 * 0.002 ** 2
+    tree = obj.bvh(w)
+    p, n, _ = obj.sample_surface(40, rng=rng)
+    pts = np.concatenate([p + n * rng.normal(scale=0.004, size=(40, 1)), p + n * 0.05])
+    dirs, _ = K.cube_bin_directions()
+    dirs = np.ascontiguousarray(dirs[::7])
+    cost = np.empty((len(pts), len(dirs)))
+    face = np.empty((len(pts), len(dirs)), np.int64)
+    K._near_samples(tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start,
+                    tree.count, pts, dirs, w, bound, cost, face)
+    P = np.repeat(pts, len(dirs), axis=0)
+    N = np.tile(dirs, (len(pts), 1))
+    _, best = K.query_bruteforce(tree.tri, tree.nrm, P, N, w)
+    best = best.reshape(cost.shape)
+    below = best < bound
+    assert 0.05 < below.mean() < 0.5  # both cases are exercised
+    assert np.allclose(cost[below], best[below], rtol=1e-12, atol=0.0)
+    assert np.all(face[below] >= 0)
+    assert np.all(cost[~below] == bound) and np.all(face[~below] == -1)
+    f, q, m = face[below], P[below.ravel()], N[below.ravel()]  # the face returned has that cost
+    closest = trimesh.triangles.closest_point(tree.tri[f], q)
+    mine = np.sum((closest - q) ** 2, axis=1) + w * np.sum((m - tree.nrm[f]) ** 2, axis=1)
+    assert np.allclose(mine, best[below], rtol=1e-9, atol=1e-15)
+
+
 def test_grid_scratch_rows_hold_the_longest_list_for_every_thread(objects):
     """A query keeps its cell list's bounds in a scratch row that the compiled kernels do
     not bounds-check: the row must hold the longest list, joint and position-only, and

@@ -632,9 +632,10 @@ _NEAR_CROWD = 256
 
 
 @nb.njit(inline="always", **_NB)
-def _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, r2, cand):
-    """The faces closer to the point than sqrt(r2) into ``cand`` (as many as it holds);
-    returns how many there are, counted up to one more than it holds."""
+def _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, r2, cand, dist):
+    """The faces closer to the point than sqrt(r2) into ``cand`` and their squared distances
+    into ``dist`` (as many as they hold); returns how many there are, counted up to one more
+    than they hold."""
     k = 0
     stack = np.empty(_STACK, np.int64)
     sp = 1
@@ -650,6 +651,7 @@ def _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, r2,
                 if d2 < r2:
                     if k < cand.shape[0]:
                         cand[k] = f
+                        dist[k] = d2
                     k += 1
         else:
             stack[sp] = left[node]
@@ -658,13 +660,34 @@ def _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, r2,
     return k
 
 
+@nb.njit(inline="always", **_NB)
+def _nearest_first(nrm, cand, dist, order, k, nx, ny, nz, w, best):
+    """(cost, face) of the best of ``k`` gathered faces for the normal (n), below ``best``
+    (face -1 where none is): ``order`` sorts their squared distances ``dist``, and the scan
+    ends where the distance alone reaches the best cost."""
+    bf = -1
+    for u in range(k):
+        i = order[u]
+        if dist[i] >= best:
+            break
+        f = cand[i]
+        ex = nx - nrm[f, 0]
+        ey = ny - nrm[f, 1]
+        ez = nz - nrm[f, 2]
+        c = dist[i] + w * (ex * ex + ey * ey + ez * ez)
+        if c < best:
+            best = c
+            bf = f
+    return best, bf
+
+
 @nb.njit(parallel=True, **_NB)
 def _near_crowding(tri, nrm, plo, phi, left, right, start, count, pts, r2, out):
     """How many faces lie within sqrt(r2) of each point (up to :data:`_NEAR_CROWD` + 1)."""
     for i in nb.prange(pts.shape[0]):
         cand = np.empty(_NEAR_CROWD, np.int64)
         out[i] = _faces_within(tri, nrm, plo, phi, left, right, start, count, pts[i, 0], pts[i, 1], pts[i, 2],
-                               r2, cand)
+                               r2, cand, np.empty(_NEAR_CROWD))
 
 
 @nb.njit(parallel=True, **_NB)
@@ -679,17 +702,30 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
     for i in nb.prange(pts.shape[0]):
         px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
         cand = np.empty(_NEAR_CROWD, np.int64)
-        k = _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, bound, cand)
+        dist = np.empty(_NEAR_CROWD)
+        k = _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, bound, cand, dist)
+        kk = min(k, _NEAR_CROWD)
+        order = np.argsort(dist[:kk], kind="mergesort")
+        # the box of the gathered faces' normals: a direction whose normal term alone, from
+        # the box, lifts the nearest face's distance to the bound has no winner
+        box = np.empty((2, 3))
+        box[0, :] = np.inf
+        box[1, :] = -np.inf
+        for u in range(kk):
+            for a in range(3):
+                box[0, a] = min(box[0, a], nrm[cand[u], a])
+                box[1, a] = max(box[1, a], nrm[cand[u], a])
+        dmin = dist[order[0]] if kk > 0 else bound
         for d in range(dirs.shape[0]):
             nx, ny, nz = dirs[d, 0], dirs[d, 1], dirs[d, 2]
             if k > _NEAR_CROWD:
                 c, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                                           px, py, pz, nx, ny, nz, w, bound)
-            else:
+            elif dmin + w * _box_d2(nx, ny, nz, box[0:1], box[1:2], 0) >= bound:
                 c = bound
                 bf = -1
-                for j in range(k):
-                    c, bf = _try_face(tri, nrm, cand[j], px, py, pz, nx, ny, nz, w, c, bf)
+            else:
+                c, bf = _nearest_first(nrm, cand, dist, order, k, nx, ny, nz, w, bound)
             cost[i, d] = c
             face[i, d] = bf
 
@@ -1065,14 +1101,32 @@ def _grid_lists_position(tri, plo, phi, nlo, nhi, nrm, left, right, start, count
 @nb.njit(parallel=True, **_NB)
 def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                       centres, dirs, w, out_rows):
+    """The exact winner of every centre for every direction (rows of ``dirs``: unit
+    normals, or zero for the closest face in position).
+
+    One search per centre instead of one per direction: no face farther than sqrt(d^2 +
+    4 w) wins for any direction (d: the distance to the closest face, whose cost is at most
+    d^2 + w |n - n_f|^2 <= d^2 + 4 w), so the faces within that reach are gathered once,
+    sorted by distance, and each direction scans them nearest first until the distance
+    alone passes its best cost. Ties may pick another face of equal cost than a search of
+    the tree would.
+    """
     C = centres.shape[0]
     D = dirs.shape[0]
+    F = tri.shape[0]
     for c in nb.prange(C):
+        px, py, pz = centres[c, 0], centres[c, 1], centres[c, 2]
+        d2min, _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                     px, py, pz, 0.0, 0.0, 0.0, 0.0, np.inf)
+        reach = d2min + 4.0 * w
+        reach += 1e-9 * reach  # the gather's strict test must keep a face at exactly the reach
+        cand = np.empty(F, np.int64)
+        dist = np.empty(F)
+        k = min(_faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, reach, cand, dist), F)
+        order = np.argsort(dist[:k], kind="mergesort")
         for j in range(D):
-            _, bf, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                                      centres[c, 0], centres[c, 1], centres[c, 2],
-                                      dirs[j, 0], dirs[j, 1], dirs[j, 2], w, np.inf)
-            out_rows[c, j] = bf
+            _, out_rows[c, j] = _nearest_first(nrm, cand, dist, order, k, dirs[j, 0], dirs[j, 1], dirs[j, 2], w,
+                                               np.inf)
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
