@@ -27,12 +27,13 @@ TITLE = "Likelihood grid: build time per mesh (vs. the baseline commit)"
 #: the commit before the build gathered each centre's faces once
 BASELINE = "611a560"
 BUNDLED = ["bread", "can", "cereal", "lemon", "milk", "mug", "bunny"]
-HELD_OUT = ["torus-10k", "ball-20k", "bunny-14k"]
+HELD_OUT = ["torus-10k", "ball-20k", "bunny-14k", "mapped-cereal"]
 
 
 def _mesh(name):
     import warnings
 
+    import numpy as np
     import trimesh
 
     from touchloc.data import load_object
@@ -44,6 +45,15 @@ def _mesh(name):
             return MeshObject(trimesh.creation.torus(0.08, 0.03, major_sections=100, minor_sections=50), name=name)
         if name == "ball-20k":
             return MeshObject(trimesh.creation.icosphere(5, 0.1), name=name)
+        if name == "mapped-cereal":  # a mesh mapped by touch: the cereal box, 100 touches
+            from touchloc.mapping import explore
+            from touchloc.planners import SimulatedWorld
+
+            box = load_object("cereal")
+            pad = 0.02
+            world = SimulatedWorld(box, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
+            run = explore(world, (box.bounds[0] - pad, box.bounds[1] + pad), 100, planner="uncertainty", rng=0)
+            return MeshObject(run.map.to_mesh().mesh, name=name)
         if name == "bunny-14k":
             b = load_object("bunny")
             v, f = b.mesh.vertices, b.mesh.faces
@@ -55,6 +65,7 @@ def _mesh(name):
 
 def _child(names):
     """One tree: build every mesh's grid, print one JSON line each."""
+    import numba
     import numpy as np
     import trimesh
 
@@ -76,10 +87,13 @@ def _child(names):
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         P, N = K.near_check_queries(tree, w, 0.002**2, n=20000, seed=1)
         model.query_costs(P, N, method="fast")
-        t0 = time.perf_counter()
-        for _ in range(3):
+        ns = np.inf
+        numba.set_num_threads(1)  # the query's own cost, not the other core's load
+        for _ in range(5):
+            t0 = time.perf_counter()
             model.query_costs(P, N, method="fast")
-        ns = (time.perf_counter() - t0) / 3 / len(P) * 1e9
+            ns = min(ns, (time.perf_counter() - t0) / len(P) * 1e9)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
         print(json.dumps(dict(mesh=name, faces=len(obj.triangles), wall=wall, cpu=cpu, entries=int(len(grid.ids)),
                               near=int(len(grid.near_ids)), check=[float(x) for x in grid.near_check],
                               ns=ns)), flush=True)
@@ -107,8 +121,9 @@ def run(quick: bool = False) -> str:
         for label, path in reversed(trees):
             for name, r in _run_tree(path, names, tmp / f"numba-{label}").items():
                 old = best.get((label, name))
-                if old is None or r["wall"] < old["wall"]:
-                    best[(label, name)] = r
+                if old is not None:  # the faster build, and the faster query pass of either run
+                    r = dict(r if r["wall"] < old["wall"] else old, ns=min(r["ns"], old["ns"]))
+                best[(label, name)] = r
     elapsed = time.perf_counter() - t0
     rows = []
     for name in names:
@@ -129,8 +144,8 @@ def run(quick: bool = False) -> str:
         f"twice; the faster build of each mesh is shown (wall s, CPU s in brackets; {elapsed:.0f} s for all "
         "runs). 'Entries' count the general lists' faces and the near lists' faces; 'off' is the share of the "
         "near lists' check queries answered more than 0.1 d_M^2 above the exact cost; 'ns / query' is the "
-        "fast method on 20,000 near-surface queries (points within sigma of the surface, normals sigma off), "
-        "one process, both threads.",
+        "fast method on 20,000 near-surface queries (points within sigma of the surface, normals sigma off) "
+        "on one thread, the fastest of five passes in each of the two runs.",
         table(("mesh", "faces", f"{BASELINE} s", "this tree s", "speed-up",
                f"general entries, {BASELINE} / this", "near entries", "near lists off", "ns / query"), rows),
     ])
