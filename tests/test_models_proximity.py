@@ -6,7 +6,7 @@ import trimesh
 
 from touchloc import geometry
 from touchloc.errors import ValidationError
-from touchloc.models import Contacts, ProximityModel, SumModel
+from touchloc.models import Contacts, MeshObject, ProximityModel, SumModel
 
 
 def random_poses(rng, n, half=0.05):
@@ -193,6 +193,32 @@ def test_every_cell_lists_the_exact_winners_at_its_centre(objects):
             ids = grid.ids[grid.offsets[cell]:grid.offsets[cell + 1]]
             _, listed = K.query_bruteforce(tree.tri[ids], tree.nrm[ids], P, dirs, w)
             assert np.allclose(listed, best, rtol=1e-12, atol=0.0), (lvl, c)
+
+
+def test_centres_with_too_many_faces_within_reach_search_the_tree_and_list_the_same_winners(monkeypatch):
+    """A dense mesh's centre gathers more faces than the build keeps: it searches the tree
+    per normal instead, and its list holds the exact winners all the same."""
+    from touchloc.models import _kernels as K
+
+    obj = MeshObject(trimesh.creation.icosphere(subdivisions=2, radius=0.04), name="ball")
+    w = 0.002 ** 2 / 0.1 ** 2
+    tree = obj.bvh(w)
+    lo, hi = obj.bounds
+    levels = [(lo - 0.01, hi + 0.01, 0.012)]
+    grids = {}
+    for most in (K.GATHER_MOST, 8):
+        monkeypatch.setattr(K, "GATHER_MOST", most)
+        grids[most] = K.build_candidate_grid(tree, levels, w, 16)
+    dirs = np.vstack([K.fibonacci_sphere(16), np.zeros((1, 3))])
+    shape = tuple(grids[8].shape[0])
+    for c in range(int(np.prod(shape))):
+        centre = grids[8].lo[0] + (np.array(np.unravel_index(c, shape)) + 0.5) * grids[8].h[0]
+        P = np.repeat(centre[None], len(dirs), axis=0)
+        _, best = K.query_bruteforce(tree.tri, tree.nrm, P, dirs, w)
+        for grid in grids.values():
+            ids = grid.ids[grid.offsets[c]:grid.offsets[c + 1]]
+            _, listed = K.query_bruteforce(tree.tri[ids], tree.nrm[ids], P, dirs, w)
+            assert np.allclose(listed, best, rtol=1e-12, atol=0.0), c
 
 
 def test_near_samples_are_the_exact_winners_below_their_bound(objects, rng):

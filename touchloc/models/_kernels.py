@@ -1098,9 +1098,14 @@ def _grid_lists_position(tri, plo, phi, nlo, nhi, nrm, left, right, start, count
     return counts
 
 
+#: the most faces a centre of the joint lists gathers; beyond, it searches the tree per
+#: normal (a dense mesh, whose faces within reach are many)
+GATHER_MOST = 4096
+
+
 @nb.njit(parallel=True, **_NB)
 def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                      centres, dirs, w, out_rows):
+                      centres, dirs, w, most, out_rows):
     """The exact winner of every centre for every direction (rows of ``dirs``: unit
     normals, or zero for the closest face in position).
 
@@ -1108,8 +1113,9 @@ def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
     4 w) wins for any direction (d: the distance to the closest face, whose cost is at most
     d^2 + w |n - n_f|^2 <= d^2 + 4 w), so the faces within that reach are gathered once,
     sorted by distance, and each direction scans them nearest first until the distance
-    alone passes its best cost. Ties may pick another face of equal cost than a search of
-    the tree would.
+    alone passes its best cost. A centre with more than ``most`` faces within reach
+    searches the tree per direction instead. Ties may pick another face of equal cost than
+    a search of the tree would.
     """
     C = centres.shape[0]
     D = dirs.shape[0]
@@ -1120,9 +1126,14 @@ def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
                                      px, py, pz, 0.0, 0.0, 0.0, 0.0, np.inf)
         reach = d2min + 4.0 * w
         reach += 1e-9 * reach  # the gather's strict test must keep a face at exactly the reach
-        cand = np.empty(F, np.int64)
-        dist = np.empty(F)
-        k = min(_faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, reach, cand, dist), F)
+        cand = np.empty(min(F, most), np.int64)
+        dist = np.empty(min(F, most))
+        k = _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, reach, cand, dist)
+        if k > cand.shape[0]:  # too many within reach (small faces): a search of the tree per normal
+            for j in range(D):
+                _, out_rows[c, j], _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
+                                                      px, py, pz, dirs[j, 0], dirs[j, 1], dirs[j, 2], w, np.inf)
+            continue
         order = np.argsort(dist[:k], kind="mergesort")
         for j in range(D):
             _, out_rows[c, j] = _nearest_first(nrm, cand, dist, order, k, dirs[j, 0], dirs[j, 1], dirs[j, 2], w,
@@ -1166,7 +1177,7 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
             cuts = np.linspace(0, len(centres), min(32, len(centres)) + 1).astype(np.int64)
             for a, b in progress(list(zip(cuts[:-1], cuts[1:])), desc=f"likelihood grid, level {len(los) + 1} of "
                                  f"{len(levels)} (built once per mesh, then kept on disk)"):
-                _grid_lists_joint(*args, centres[a:b], dirs, float(w), rows[a:b])
+                _grid_lists_joint(*args, centres[a:b], dirs, float(w), GATHER_MOST, rows[a:b])
             rows.sort(axis=1)
             keep = np.ones_like(rows, dtype=bool)
             keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
