@@ -696,8 +696,11 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
     every point for every direction.
 
     A face farther from the point than sqrt(bound) costs more than the bound, so each
-    point first gathers the faces within that distance and scores every direction over
-    them alone (the tree's query where they are more than :data:`_NEAR_CROWD`).
+    point first gathers the faces within that distance, sorted by it, and scores every
+    direction over them alone, nearest first (:func:`_nearest_first`; the tree's query where
+    they are more than :data:`_NEAR_CROWD`). A direction whose normal term to the box of the
+    gathered faces' normals, added to the nearest face's distance, reaches the bound has
+    no winner and is skipped.
     """
     for i in nb.prange(pts.shape[0]):
         px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
