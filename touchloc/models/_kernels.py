@@ -1107,40 +1107,53 @@ GATHER_MOST = 4096
 
 
 @nb.njit(parallel=True, **_NB)
-def _grid_lists_joint(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                      centres, dirs, w, most, out_rows):
+def _grid_lists_joint(tri, nrm, plo, phi, left, right, start, count, centres, d2min, dirs, w, most, out_rows):
     """The exact winner of every centre for every direction (rows of ``dirs``: unit
-    normals, or zero for the closest face in position).
+    normals, or zero for the closest face in position); ``d2min`` holds each centre's
+    squared distance to the mesh.
 
-    One search per centre instead of one per direction: no face farther than sqrt(d^2 +
-    4 w) wins for any direction (d: the distance to the closest face, whose cost is at most
-    d^2 + w |n - n_f|^2 <= d^2 + 4 w), so the faces within that reach are gathered once,
-    sorted by distance, and each direction scans them nearest first until the distance
-    alone passes its best cost. A centre with more than ``most`` faces within reach
-    searches the tree per direction instead. Ties may pick another face of equal cost than
-    a search of the tree would.
+    One gather per centre instead of one search per direction: no face farther than
+    sqrt(d^2 + 4 w) wins for any direction (the closest face costs at most d^2 +
+    w |n - n_f|^2 <= d^2 + 4 w), so the faces within that reach are gathered once, sorted
+    by distance, and each direction scans them nearest first until the distance alone
+    passes its best cost. A centre with more than ``most`` faces within reach gets a row
+    of -1 (its caller searches the tree per direction). Ties may pick another face of
+    equal cost than a search of the tree would.
     """
     C = centres.shape[0]
     D = dirs.shape[0]
     F = tri.shape[0]
     for c in nb.prange(C):
         px, py, pz = centres[c, 0], centres[c, 1], centres[c, 2]
-        d2min, _, _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                                     px, py, pz, 0.0, 0.0, 0.0, 0.0, np.inf)
-        reach = d2min + 4.0 * w
+        reach = d2min[c] + 4.0 * w
         reach += 1e-9 * reach  # the gather's strict test must keep a face at exactly the reach
         cand = np.empty(min(F, most), np.int64)
         dist = np.empty(min(F, most))
         k = _faces_within(tri, nrm, plo, phi, left, right, start, count, px, py, pz, reach, cand, dist)
-        if k > cand.shape[0]:  # too many within reach (small faces): a search of the tree per normal
-            for j in range(D):
-                _, out_rows[c, j], _, _, _ = _bvh_one(tri, nrm, plo, phi, nlo, nhi, left, right, start, count,
-                                                      px, py, pz, dirs[j, 0], dirs[j, 1], dirs[j, 2], w, np.inf)
+        if k > cand.shape[0]:
+            out_rows[c, :] = -1
             continue
         order = np.argsort(dist[:k], kind="mergesort")
         for j in range(D):
             _, out_rows[c, j] = _nearest_first(nrm, cand, dist, order, k, dirs[j, 0], dirs[j, 1], dirs[j, 2], w,
                                                np.inf)
+
+
+def _joint_winners(tree: BVH, centres, dirs, w: float, out_rows):
+    """:func:`_grid_lists_joint` for a slice of centres, with the tree searches it leaves
+    (each centre's distance to the mesh; every direction of a centre with too many faces
+    within reach) done by the compiled exact query."""
+    args = (tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
+    d2min = np.empty(len(centres))
+    _bvh_query_costs(*args, centres, np.zeros_like(centres), 0.0, d2min)
+    _grid_lists_joint(tree.tri, tree.nrm, tree.plo, tree.phi, tree.left, tree.right, tree.start, tree.count,
+                      centres, d2min, dirs, float(w), GATHER_MOST, out_rows)
+    over = np.flatnonzero(out_rows[:, 0] < 0)
+    if len(over):
+        P = np.ascontiguousarray(np.repeat(centres[over], len(dirs), axis=0))
+        N = np.ascontiguousarray(np.tile(dirs, (len(over), 1)))
+        f, _, _ = (_bvh_query if len(P) >= PARALLEL_MIN else _bvh_query_serial)(*args, P, N, float(w), True)
+        out_rows[over] = f.reshape(len(over), len(dirs))
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -1180,7 +1193,7 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
             cuts = np.linspace(0, len(centres), min(32, len(centres)) + 1).astype(np.int64)
             for a, b in progress(list(zip(cuts[:-1], cuts[1:])), desc=f"likelihood grid, level {len(los) + 1} of "
                                  f"{len(levels)} (built once per mesh, then kept on disk)"):
-                _grid_lists_joint(*args, centres[a:b], dirs, float(w), GATHER_MOST, rows[a:b])
+                _joint_winners(tree, centres[a:b], dirs, w, rows[a:b])
             rows.sort(axis=1)
             keep = np.ones_like(rows, dtype=bool)
             keep[:, 1:] = rows[:, 1:] != rows[:, :-1]
