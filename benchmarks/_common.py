@@ -44,19 +44,25 @@ def quiet_load(name):
         return load_object(name)
 
 
-def big_bunny():
-    """The bundled bunny (15 cm) subdivided twice: ~14k faces; three times: ~58k."""
+def subdivided_bunny(times: int, name: str | None = None):
+    """The bundled bunny (15 cm, 902 faces) subdivided ``times`` times: ~14k faces for 2,
+    ~58k for 3."""
     import trimesh
 
     from touchloc.models import MeshObject
 
     b = quiet_load("bunny")
     v, f = b.mesh.vertices, b.mesh.faces
-    for _ in range(3):
+    for _ in range(times):
         v, f = trimesh.remesh.subdivide(v, f)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return MeshObject(trimesh.Trimesh(v, f), name="bunny-58k")
+        return MeshObject(trimesh.Trimesh(v, f), name=name or f"bunny-{len(f) // 1000}k")
+
+
+def big_bunny():
+    """The bundled bunny subdivided three times: ~58k faces."""
+    return subdivided_bunny(3, name="bunny-58k")
 
 
 # -- sweeps ------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import ROOT, baseline_tree, quiet_load, table
+from _common import ROOT, baseline_tree, quiet_load, subdivided_bunny, table
 
 TITLE = "Cold start: compiled kernels and per-mesh structures on disk"
 
@@ -87,20 +87,6 @@ def _contacts_csv(path):
     R = Rotation.from_euler("z", 0.7).as_matrix()
     P = p @ R.T + [0.03, -0.02, 0.0]
     np.savetxt(path, np.hstack([P, n @ R.T]), delimiter=",", header="x,y,z,nx,ny,nz", comments="")
-
-
-def _subdivided_bunny(times):
-    import trimesh
-
-    from touchloc.models import MeshObject
-
-    b = quiet_load("bunny")
-    v, f = b.mesh.vertices, b.mesh.faces
-    for _ in range(times):
-        v, f = trimesh.remesh.subdivide(v, f)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return MeshObject(trimesh.Trimesh(v, f), name=f"bunny-{len(f) // 1000}k")
 
 
 def _per_mesh(objs, cache):
@@ -225,9 +211,9 @@ def run(quick: bool = False) -> str:
     if len(comp_rows) == 2 and comp_rows[1][2] != "-":
         comp_rows.append(("ratio (wall)", "", f"{float(comp_rows[0][2]) / float(comp_rows[1][2]):.2f}x", ""))
 
-    objs = [quiet_load("mug"), _subdivided_bunny(2)]
+    objs = [quiet_load("mug"), subdivided_bunny(2)]
     if not quick:
-        objs.append(_subdivided_bunny(3))
+        objs.append(subdivided_bunny(3))
     mesh_rows = _per_mesh(objs, tmp / "per-mesh")
 
     cold, before, after = res[0], res[1], res[3]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -21,7 +22,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from _common import baseline_tree, table  # noqa: E402
+from _common import baseline_tree, quiet_load, subdivided_bunny, table  # noqa: E402
 
 TITLE = "Likelihood grid: build time per mesh (vs. the baseline commit)"
 #: the commit before the build gathered each centre's faces once
@@ -31,36 +32,27 @@ HELD_OUT = ["torus-10k", "ball-20k", "bunny-14k", "mapped-cereal"]
 
 
 def _mesh(name):
-    import warnings
-
     import numpy as np
     import trimesh
 
-    from touchloc.data import load_object
     from touchloc.models import MeshObject
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        if name == "torus-10k":
-            return MeshObject(trimesh.creation.torus(0.08, 0.03, major_sections=100, minor_sections=50), name=name)
-        if name == "ball-20k":
-            return MeshObject(trimesh.creation.icosphere(5, 0.1), name=name)
-        if name == "mapped-cereal":  # a mesh mapped by touch: the cereal box, 100 touches
-            from touchloc.mapping import explore
-            from touchloc.planners import SimulatedWorld
+    if name == "torus-10k":
+        return MeshObject(trimesh.creation.torus(0.08, 0.03, major_sections=100, minor_sections=50), name=name)
+    if name == "ball-20k":
+        return MeshObject(trimesh.creation.icosphere(5, 0.1), name=name)
+    if name == "bunny-14k":
+        return subdivided_bunny(2, name=name)
+    if name == "mapped-cereal":  # a mesh mapped by touch: the cereal box, 100 touches
+        from touchloc.mapping import explore
+        from touchloc.planners import SimulatedWorld
 
-            box = load_object("cereal")
-            pad = 0.02
-            world = SimulatedWorld(box, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
-            run = explore(world, (box.bounds[0] - pad, box.bounds[1] + pad), 100, planner="uncertainty", rng=0)
-            return MeshObject(run.map.to_mesh().mesh, name=name)
-        if name == "bunny-14k":
-            b = load_object("bunny")
-            v, f = b.mesh.vertices, b.mesh.faces
-            for _ in range(2):
-                v, f = trimesh.remesh.subdivide(v, f)
-            return MeshObject(trimesh.Trimesh(v, f), name=name)
-        return load_object(name)
+        box = quiet_load("cereal")
+        pad = 0.02
+        world = SimulatedWorld(box, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
+        run = explore(world, (box.bounds[0] - pad, box.bounds[1] + pad), 100, planner="uncertainty", rng=0)
+        return run.map.to_mesh(name=name)
+    return quiet_load(name)
 
 
 def _child(names):
@@ -125,6 +117,7 @@ def run(quick: bool = False) -> str:
                     r = dict(r if r["wall"] < old["wall"] else old, ns=min(r["ns"], old["ns"]))
                 best[(label, name)] = r
     elapsed = time.perf_counter() - t0
+    shutil.rmtree(tmp, ignore_errors=True)
     rows = []
     for name in names:
         a = best[("this", name)]
