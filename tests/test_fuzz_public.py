@@ -175,6 +175,14 @@ def _has_nan(x, depth=0) -> bool:
 
 
 def _call_kwargs(fn, params, target, bad, extra=None):
+    args, kwargs = _arguments(params, target, bad, extra)
+    return fn(*args, **kwargs)
+
+
+def _arguments(params, target, bad, extra=None):
+    """(args, kwargs) of one call: the hostile value for ``target``, the world's values by
+    name (and ``extra``'s) for the rest. Building them may be slow the first time (a sweep's
+    fixture runs a trial), so it is not part of the timed call."""
     w = world()
     if callable(extra):  # values by name for this callable: used where a parameter has that name
         w = {**w, **extra(w)}
@@ -191,7 +199,7 @@ def _call_kwargs(fn, params, target, bad, extra=None):
             kwargs[p.name] = None
     pos_only = [p for p in params if p.kind == p.POSITIONAL_ONLY]
     args = [kwargs.pop(p.name) for p in pos_only if p.name in kwargs]
-    return fn(*args, **kwargs)
+    return args, kwargs
 
 
 #: a docstring with this phrase declares that NaN in an argument comes back as NaN (low-level
@@ -219,11 +227,14 @@ def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT, extra=None):
     A NaN result counts as 'ok' only when the hostile value itself holds NaN and the
     callable's docstring says "NaN in, NaN out".
     """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        args, kwargs = _arguments(params, target, bad, extra)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with np.errstate(all="ignore"), time_limit(time_limit_s):
-                out = _call_kwargs(fn, params, target, bad, extra)
+                out = fn(*args, **kwargs)
     except CallTimeout as exc:
         return "hang", str(exc)
     except TouchlocError:
