@@ -16,10 +16,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/touchloc demo
 
-# the suite on a worker process per core (at most 4; numba's threads share the cores), the
-# slow tests spread by work stealing; PYTEST_ARGS="-n 0" runs it in one process
+# the suite on a worker process per core (at most 4; numba's threads share the cores); each
+# test file runs whole in one worker, in order, as its module-level fixtures expect;
+# PYTEST_ARGS="-n 0" runs it in one process
 test: $(STAMP)
-	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist worksteal $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile $(PYTEST_ARGS)
 
 # the localisation, planning, identification and DNF sweeps run on a process pool, one worker
 # per core (BENCH_ARGS="--executor dask --workers 8" to move them; --resume after an interrupt)
