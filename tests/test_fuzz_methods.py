@@ -43,8 +43,8 @@ def _in_a_scratch_directory(tmp_path_factory):
     os.chdir(tmp_path_factory.mktemp("fuzz-methods"))
     yield
     if _RIG:
-        # the hand and tactile sensor are the rig's: a later set-up of this module (another
-        # worker's share of it) starts a new rig instead of reusing closed ones
+        # the hand and tactile sensor are the rig's: a later set-up of this module in the same
+        # process (a test runner that splits a file) starts a new rig, not the closed ports
         _RIG.pop("rig").close()
         _RIG.clear()
     test_fuzz_public._WORLD = None
