@@ -734,10 +734,16 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
 
 
 @nb.njit(inline="always", **_NB)
-def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf):
+def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, planar):
     """The distinct winners of the samples of one cell and bin (the cell's 8 corners times
     the bin's centre, corners and edge midpoints) costing below the bound, into ``buf``;
-    returns their number, or 0 when no sample costs below ``relevant``."""
+    returns their number, or 0 when no sample costs below ``relevant``.
+
+    ``planar`` = (tri, nrm, group_off, group_faces, group, lo, h): each winner's coplanar
+    faces (:func:`coplanar_groups`) that come within half a cell diagonal of the cell's
+    centre projected on their plane are listed too. A flat side split into triangles is won
+    by whichever holds the query's projection, which the samples at the corners may miss
+    (a sliver that crosses the cell between them)."""
     k = 0
     low = np.inf
     for dx in range(2):
@@ -758,23 +764,79 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf):
                     if not seen:
                         buf[k] = f
                         k += 1
-    return k if low < relevant else 0
+    if low >= relevant:
+        return 0
+    tri, nrm, group_off, group_faces, group, lo, h = planar
+    if group_faces.shape[0] == 0:
+        return k
+    cx = lo[0] + (ijk[0] + 0.5) * h
+    cy = lo[1] + (ijk[1] + 0.5) * h
+    cz = lo[2] + (ijk[2] + 0.5) * h
+    r2 = 0.75 * h * h * (1.0 + 1e-9)
+    winners = k
+    for u in range(winners):
+        gr = group[buf[u]]
+        if gr < 0:
+            continue
+        for j in range(group_off[gr], group_off[gr + 1]):
+            g = group_faces[j]
+            seen = False
+            for v in range(k):
+                if buf[v] == g:
+                    seen = True
+                    break
+            if seen or k >= buf.shape[0]:
+                continue
+            qx, qy, qz = _closest_on_triangle(cx, cy, cz, tri[g, 0, 0], tri[g, 0, 1], tri[g, 0, 2],
+                                              tri[g, 1, 0], tri[g, 1, 1], tri[g, 1, 2],
+                                              tri[g, 2, 0], tri[g, 2, 1], tri[g, 2, 2])
+            sd = (cx - tri[g, 0, 0]) * nrm[g, 0] + (cy - tri[g, 0, 1]) * nrm[g, 1] + (cz - tri[g, 0, 2]) * nrm[g, 2]
+            if (cx - qx) ** 2 + (cy - qy) ** 2 + (cz - qz) ** 2 - sd * sd <= r2:
+                buf[k] = g
+                k += 1
+    return k
+
+
+def coplanar_groups(tri: np.ndarray, nrm: np.ndarray):
+    """Faces that share a plane (unit normals equal to 1e-7, offsets to 1e-7 m): a group id
+    per face (-1 for a face alone in its plane) and the groups as CSR ``(offsets, faces)``."""
+    tri = np.asarray(tri, dtype=np.float64)
+    nrm = np.asarray(nrm, dtype=np.float64)
+    key = np.round(np.concatenate([nrm, np.einsum("ij,ij->i", nrm, tri[:, 0])[:, None]], axis=1) * 1e7)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    shared = counts[inv] > 1
+    ids = np.full(len(counts), -1, np.int64)
+    big = np.flatnonzero(counts > 1)
+    ids[big] = np.arange(len(big))
+    group = ids[inv]
+    order = np.argsort(group[shared], kind="stable")
+    faces = np.flatnonzero(shared)[order].astype(np.int64)
+    off = np.zeros(len(big) + 1, np.int64)
+    np.cumsum(counts[big], out=off[1:])
+    return group.astype(np.int64), off, faces
+
+
+def _near_buffer(corners, group_off) -> int:
+    """Room for one (cell, bin)'s list: its samples' winners and their coplanar faces."""
+    most = int(np.diff(group_off).max()) if len(group_off) > 1 else 1
+    return 8 * (corners.shape[1] + 1) * max(1, min(most, 64))
 
 
 @nb.njit(parallel=True, **_NB)
-def _near_count(cells, S1, S2, cidx, cost, face, corners, relevant, counts):
+def _near_count(cells, S1, S2, cidx, cost, face, corners, relevant, counts, planar, room):
     for r in nb.prange(cells.shape[0]):
-        buf = np.empty(8 * (corners.shape[1] + 1), np.int64)
+        buf = np.empty(room, np.int64)
         for b in range(corners.shape[0]):
-            counts[r, b] = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf)
+            counts[r, b] = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf, planar)
 
 
 @nb.njit(parallel=True, **_NB)
-def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids):
+def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids, planar, room):
     for r in nb.prange(cells.shape[0]):
-        buf = np.empty(8 * (corners.shape[1] + 1), np.int64)
+        buf = np.empty(room, np.int64)
         for b in range(corners.shape[0]):
-            k = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf)
+            k = _near_gather(cells[r], S1, S2, cidx, cost, face, corners, b, relevant, buf, planar)
             for u in range(k):
                 ids[start[r, b] + u] = buf[u]
 
@@ -821,7 +883,10 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float)
     _near_samples(*args, pts, dirs, float(w), NEAR_SAMPLE_COST * sigma2, cost, face)
     relevant = NEAR_COST * sigma2
     counts = np.zeros((len(cells), len(corners)), np.int64)
-    _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts)
+    group, group_off, group_faces = coplanar_groups(tree.tri, tree.nrm)
+    planar = (tree.tri, tree.nrm, group_off, group_faces, group, lo, float(cell))
+    room = _near_buffer(corners, group_off)
+    _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts, planar, room)
     # entries in (cell, bin) order; per cell one cache line: its 6 words (bit b of word s:
     # side s's bin b has a list), the entry of its first list, and padding
     has = counts > 0
@@ -831,7 +896,7 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float)
     start = np.zeros_like(counts)
     start[has] = off[:-1]
     ids = np.empty(int(off[-1]), np.int64)
-    _near_fill(ijk, S[1], S[2], cidx, cost, face, corners, relevant, start, ids)
+    _near_fill(ijk, S[1], S[2], cidx, cost, face, corners, relevant, start, ids, planar, room)
     table = np.zeros((int(np.prod(shape)), 8), np.uint64)
     if len(cells):
         bits = has.reshape(len(cells), 6, 64).astype(np.uint64) << np.arange(64, dtype=np.uint64)
