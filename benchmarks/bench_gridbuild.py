@@ -25,8 +25,9 @@ sys.path.insert(0, str(HERE))
 from _common import baseline_tree, quiet_load, subdivided_bunny, table  # noqa: E402
 
 TITLE = "Likelihood grid: build time per mesh (vs. the baseline commit)"
-#: the commit before the build gathered each centre's faces once
-BASELINE = "611a560"
+#: the commit before the near lists held each winner's coplanar faces (611a560 before that:
+#: the commit before the build gathered each centre's faces once)
+BASELINE = "b5bdccb"
 BUNDLED = ["bread", "can", "cereal", "lemon", "milk", "mug", "bunny"]
 HELD_OUT = ["torus-10k", "ball-20k", "bunny-14k", "mapped-cereal"]
 
