@@ -381,6 +381,12 @@ def test_coplanar_groups_gather_the_faces_of_each_plane():
     # the tops, bottoms, fronts and backs of both boxes pair up: four planes of four
     # triangles; the ends facing +-x are six planes of two
     assert sorted(np.diff(off).tolist()) == [2] * 4 + [4] * 4
+    # faces without a unit normal (degenerate) share no plane, even with each other
+    tri = np.asarray(two.triangles, dtype=float)
+    nrm = np.asarray(two.face_normals, dtype=float).copy()
+    nrm[:3] = 0.0
+    group, off, faces = K.coplanar_groups(tri, nrm)
+    assert np.all(group[:3] == -1) and not np.isin(np.arange(3), faces).any()
 
 
 def test_near_lists_hold_every_triangle_of_a_flat_side_that_crosses_their_cell(objects):

@@ -785,7 +785,7 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
                 if buf[v] == g:
                     seen = True
                     break
-            if seen or k >= buf.shape[0]:
+            if seen or k >= buf.shape[0]:    # (a full buffer: the build's check sees the loss)
                 continue
             qx, qy, qz = _closest_on_triangle(cx, cy, cz, tri[g, 0, 0], tri[g, 0, 1], tri[g, 0, 2],
                                               tri[g, 1, 0], tri[g, 1, 1], tri[g, 1, 2],
@@ -798,11 +798,15 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
 
 
 def coplanar_groups(tri: np.ndarray, nrm: np.ndarray):
-    """Faces that share a plane (unit normals equal to 1e-7, offsets to 1e-7 m): a group id
-    per face (-1 for a face alone in its plane) and the groups as CSR ``(offsets, faces)``."""
+    """Faces that share a plane (unit normal and offset equal once rounded to 1e-7; a face
+    without a unit normal shares none): a group id per face (-1 for a face alone in its
+    plane) and the groups as CSR ``(offsets, faces)``."""
     tri = np.asarray(tri, dtype=np.float64)
     nrm = np.asarray(nrm, dtype=np.float64)
     key = np.round(np.concatenate([nrm, np.einsum("ij,ij->i", nrm, tri[:, 0])[:, None]], axis=1) * 1e7)
+    unit = np.abs(np.linalg.norm(nrm, axis=1) - 1.0) < 1e-6
+    key[~unit] = 0.0
+    key[~unit, 0] = 1e12 + np.arange(np.count_nonzero(~unit))   # a key of its own each
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     shared = counts[inv] > 1
