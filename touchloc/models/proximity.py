@@ -96,7 +96,9 @@ class ProximityModel(MeasurementModel):
     both its cell and its normal: the finest level's cells within three cells of the
     surface list, for each of 384 normal bins (a cube map) in which the cost can be low
     (below 25 d_M^2 at a sample), the faces that win at the cell's corners for the bin's
-    centre, corners and edge midpoints. Built once per mesh and ``sigma_pos``, the lists
+    centre, corners and edge midpoints, and those faces' coplanar neighbours that reach
+    the cell (on a flat side split into triangles, the one holding the query's projection
+    wins). Built once per mesh and ``sigma_pos``, the lists
     check themselves against the exact method on 20,000 queries like those of a pose near
     the truth; where more than 1 % of their answers are off by more than 0.1 d_M^2 (faces
     small against the cells, such as a finely tessellated smooth mesh), the mesh keeps
