@@ -739,11 +739,12 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
     the bin's centre, corners and edge midpoints) costing below the bound, into ``buf``;
     returns their number, or 0 when no sample costs below ``relevant``.
 
-    ``planar`` = (tri, nrm, group_off, group_faces, group, lo, h): each winner's coplanar
-    faces (:func:`coplanar_groups`) that come within half a cell diagonal of the cell's
-    centre projected on their plane are listed too. A flat side split into triangles is won
-    by whichever holds the query's projection, which the samples at the corners may miss
-    (a sliver that crosses the cell between them)."""
+    ``planar`` = (tri, nrm, adj_off, adj, group, lo, h): the coplanar faces
+    (:func:`coplanar_groups`) that come within half a cell diagonal of the cell's centre
+    projected on their plane, reached from a winner through faces of its plane that do
+    (vertex-adjacent, :func:`tree_adjacency`), are listed too. A flat side split into
+    triangles is won by whichever holds the query's projection, which the samples at the
+    corners may miss (a sliver that crosses the cell between them)."""
     k = 0
     low = np.inf
     for dx in range(2):
@@ -766,20 +767,26 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
                         k += 1
     if low >= relevant:
         return 0
-    tri, nrm, group_off, group_faces, group, lo, h = planar
-    if group_faces.shape[0] == 0:
+    tri, nrm, adj_off, adj, group, lo, h = planar
+    if adj_off.shape[0] == 0:
         return k
     cx = lo[0] + (ijk[0] + 0.5) * h
     cy = lo[1] + (ijk[1] + 0.5) * h
     cz = lo[2] + (ijk[2] + 0.5) * h
     r2 = 0.75 * h * h * (1.0 + 1e-9)
-    winners = k
-    for u in range(winners):
-        gr = group[buf[u]]
+    # breadth first from the winners over vertex-adjacent faces of the same plane within
+    # reach: the work stays local however many triangles the plane has
+    u = 0
+    while u < k:
+        f = buf[u]
+        u += 1
+        gr = group[f]
         if gr < 0:
             continue
-        for j in range(group_off[gr], group_off[gr + 1]):
-            g = group_faces[j]
+        for j in range(adj_off[f], adj_off[f + 1]):
+            g = adj[j]
+            if group[g] != gr:
+                continue
             seen = False
             for v in range(k):
                 if buf[v] == g:
@@ -845,13 +852,15 @@ def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids, p
                 ids[start[r, b] + u] = buf[u]
 
 
-def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float):
+def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float, adjacency=None):
     """The normal-keyed lists of the finest level's cells near the surface.
 
     A cell whose centre lies within :data:`NEAR_REACH` cells of the surface is sampled at
     its 8 corners, each for the centre and 4 corners of every cube-map bin; a (cell, bin)
     in which some sample costs less than :data:`NEAR_COST` (d_M^2 at ``sigma2``) lists the
-    distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`. Returns None
+    distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`, and the
+    coplanar faces near them that reach the cell (:func:`_near_gather`; ``adjacency`` is
+    :func:`tree_adjacency`'s, computed when not given). Returns None
     for a mesh whose sample points mostly have more than :data:`_NEAR_CROWD` faces within
     that cost's reach, else the :class:`CandidateGrid` fields ``near_cells`` (cells, 8) uint64 (per cell of the level:
     6 words, bit b of word s set where side s's bin b has a list, then the entry of its
@@ -888,7 +897,11 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float)
     relevant = NEAR_COST * sigma2
     counts = np.zeros((len(cells), len(corners)), np.int64)
     group, group_off, group_faces = coplanar_groups(tree.tri, tree.nrm)
-    planar = (tree.tri, tree.nrm, group_off, group_faces, group, lo, float(cell))
+    if not len(group_faces):
+        adj_off, adj = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    else:
+        adj_off, adj = tree_adjacency(tree) if adjacency is None else adjacency
+    planar = (tree.tri, tree.nrm, adj_off, adj, group, lo, float(cell))
     room = _near_buffer(corners, group_off)
     _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts, planar, room)
     # entries in (cell, bin) order; per cell one cache line: its 6 words (bit b of word s:
@@ -1289,7 +1302,7 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
                          offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
                          w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0,
                          **no_near_lists(), near_check=np.zeros(5))
-    near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2)) \
+    near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2), adjacency=(adj_off, adj)) \
         if w > 0 and sigma2 is not None else None
     if near is not None:
         grid = dataclasses.replace(grid, **near)
