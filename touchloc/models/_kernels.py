@@ -734,6 +734,15 @@ def _near_samples(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, pts, 
 
 
 @nb.njit(inline="always", **_NB)
+def _listed(buf, k, f) -> bool:
+    """Whether face ``f`` is among the first ``k`` entries of ``buf``."""
+    for u in range(k):
+        if buf[u] == f:
+            return True
+    return False
+
+
+@nb.njit(inline="always", **_NB)
 def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, planar):
     """The distinct winners of the samples of one cell and bin (the cell's 8 corners times
     the bin's centre, corners and edge midpoints) costing below the bound, into ``buf``;
@@ -755,14 +764,7 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
                     d = b if t == corners.shape[1] else corners[b, t]
                     low = min(low, cost[ci, d])
                     f = face[ci, d]
-                    if f < 0:
-                        continue
-                    seen = False
-                    for u in range(k):
-                        if buf[u] == f:
-                            seen = True
-                            break
-                    if not seen:
+                    if f >= 0 and not _listed(buf, k, f):
                         buf[k] = f
                         k += 1
     if low >= relevant:
@@ -785,14 +787,8 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
             continue
         for j in range(adj_off[f], adj_off[f + 1]):
             g = adj[j]
-            if group[g] != gr:
-                continue
-            seen = False
-            for v in range(k):
-                if buf[v] == g:
-                    seen = True
-                    break
-            if seen or k >= buf.shape[0]:    # (a full buffer: the build's check sees the loss)
+            # (a full buffer: the build's check sees the loss)
+            if group[g] != gr or k >= buf.shape[0] or _listed(buf, k, g):
                 continue
             qx, qy, qz = _closest_on_triangle(cx, cy, cz, tri[g, 0, 0], tri[g, 0, 1], tri[g, 0, 2],
                                               tri[g, 1, 0], tri[g, 1, 1], tri[g, 1, 2],
