@@ -363,30 +363,36 @@ def test_coplanar_groups_gather_the_faces_of_each_plane():
     plane; two boxes side by side share the planes of their common sides."""
     from touchloc.models import _kernels as K
 
-    def groups(mesh):
-        tri = np.asarray(mesh.triangles, dtype=float)
-        group, off, faces = K.coplanar_groups(tri, np.asarray(mesh.face_normals, dtype=float))
-        assert len(group) == len(tri) and off[-1] == len(faces) and np.all(np.diff(off) >= 2)
-        for g in range(len(off) - 1):
-            assert np.all(group[faces[off[g]:off[g + 1]]] == g)
-        return group, off
+    def sizes(tri, nrm):
+        group = K.coplanar_groups(np.asarray(tri, dtype=float), np.asarray(nrm, dtype=float))
+        assert group.shape == (len(tri),) and group.dtype == np.int64
+        shared = group[group >= 0]
+        # ids run from 0 without gaps, and every id names at least two faces
+        assert not len(shared) or (np.unique(shared) == np.arange(shared.max() + 1)).all()
+        n = np.bincount(shared) if len(shared) else np.zeros(0, np.int64)
+        assert np.all(n >= 2)
+        return group, sorted(n.tolist())
 
-    group, off = groups(trimesh.creation.box((0.1, 0.03, 0.15)))
-    assert len(off) - 1 == 6 and np.all(np.diff(off) == 2) and np.all(group >= 0)
-    group, off = groups(trimesh.creation.icosphere(subdivisions=2, radius=0.05))
-    assert len(off) == 1 and np.all(group == -1)
+    box = trimesh.creation.box((0.1, 0.03, 0.15))
+    group, n = sizes(box.triangles, box.face_normals)
+    assert n == [2] * 6 and np.all(group >= 0)
+    # each group's faces do share a plane: one normal and one offset
+    for g in range(6):
+        f = np.flatnonzero(group == g)
+        assert np.allclose(box.face_normals[f], box.face_normals[f[0]])
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    group, n = sizes(ball.triangles, ball.face_normals)
+    assert n == [] and np.all(group == -1)
     two = trimesh.util.concatenate([trimesh.creation.box((0.1, 0.1, 0.1)),
                                     trimesh.creation.box((0.1, 0.1, 0.1)).apply_translation((0.2, 0, 0))])
-    group, off = groups(two)
     # the tops, bottoms, fronts and backs of both boxes pair up: four planes of four
-    # triangles; the ends facing +-x are six planes of two
-    assert sorted(np.diff(off).tolist()) == [2] * 4 + [4] * 4
+    # triangles; the ends facing +-x are four planes of two
+    assert sizes(two.triangles, two.face_normals)[1] == [2] * 4 + [4] * 4
     # faces without a unit normal (degenerate) share no plane, even with each other
-    tri = np.asarray(two.triangles, dtype=float)
     nrm = np.asarray(two.face_normals, dtype=float).copy()
     nrm[:3] = 0.0
-    group, off, faces = K.coplanar_groups(tri, nrm)
-    assert np.all(group[:3] == -1) and not np.isin(np.arange(3), faces).any()
+    group, _ = sizes(two.triangles, nrm)
+    assert np.all(group[:3] == -1)
 
 
 def test_near_lists_hold_every_triangle_of_a_flat_side_that_crosses_their_cell(objects):

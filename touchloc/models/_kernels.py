@@ -800,10 +800,10 @@ def _near_gather(ijk, S1, S2, cidx, cost, face, corners, b, relevant, buf, plana
     return k
 
 
-def coplanar_groups(tri: np.ndarray, nrm: np.ndarray):
-    """Faces that share a plane (unit normal and offset equal once rounded to 1e-7; a face
-    without a unit normal shares none): a group id per face (-1 for a face alone in its
-    plane) and the groups as CSR ``(offsets, faces)``."""
+def coplanar_groups(tri: np.ndarray, nrm: np.ndarray) -> np.ndarray:
+    """(F,) int64: for each face, the id of the plane it shares with other faces (unit
+    normal and offset equal once rounded to 1e-7), or -1 for a face alone in its plane or
+    without a unit normal. Ids run from 0 without gaps."""
     tri = np.asarray(tri, dtype=np.float64)
     nrm = np.asarray(nrm, dtype=np.float64)
     key = np.round(np.concatenate([nrm, np.einsum("ij,ij->i", nrm, tri[:, 0])[:, None]], axis=1) * 1e7)
@@ -811,22 +811,16 @@ def coplanar_groups(tri: np.ndarray, nrm: np.ndarray):
     key[~unit] = 0.0
     key[~unit, 0] = 1e12 + np.arange(np.count_nonzero(~unit))   # a key of its own each
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    shared = counts[inv] > 1
     ids = np.full(len(counts), -1, np.int64)
     big = np.flatnonzero(counts > 1)
     ids[big] = np.arange(len(big))
-    group = ids[inv]
-    order = np.argsort(group[shared], kind="stable")
-    faces = np.flatnonzero(shared)[order].astype(np.int64)
-    off = np.zeros(len(big) + 1, np.int64)
-    np.cumsum(counts[big], out=off[1:])
-    return group.astype(np.int64), off, faces
+    return ids[inv.reshape(-1)]
 
 
-def _near_buffer(corners, group_off) -> int:
+def _near_buffer(corners, group) -> int:
     """Room for one (cell, bin)'s list: its samples' winners and their coplanar faces."""
-    most = int(np.diff(group_off).max()) if len(group_off) > 1 else 1
+    shared = group[group >= 0]
+    most = int(np.bincount(shared).max()) if len(shared) else 1
     return 8 * (corners.shape[1] + 1) * max(1, min(most, 64))
 
 
@@ -892,13 +886,13 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
     _near_samples(*args, pts, dirs, float(w), NEAR_SAMPLE_COST * sigma2, cost, face)
     relevant = NEAR_COST * sigma2
     counts = np.zeros((len(cells), len(corners)), np.int64)
-    group, group_off, group_faces = coplanar_groups(tree.tri, tree.nrm)
-    if not len(group_faces):
+    group = coplanar_groups(tree.tri, tree.nrm)
+    if not np.any(group >= 0):
         adj_off, adj = np.zeros(0, np.int64), np.zeros(0, np.int64)
     else:
         adj_off, adj = tree_adjacency(tree) if adjacency is None else adjacency
     planar = (tree.tri, tree.nrm, adj_off, adj, group, lo, float(cell))
-    room = _near_buffer(corners, group_off)
+    room = _near_buffer(corners, group)
     _near_count(ijk, S[1], S[2], cidx, cost, face, corners, relevant, counts, planar, room)
     # entries in (cell, bin) order; per cell one cache line: its 6 words (bit b of word s:
     # side s's bin b has a list), the entry of its first list, and padding
