@@ -24,7 +24,7 @@ VARIANTS = [
     ("Scaling Series (defaults)", {"name": "ss"}),
     ("Scaling Series, prune by resampling", {"name": "ss", "prune": "resample"}),
     ("Scaling Series M=12", {"name": "ss", "m_per_delta": 12}),
-    ("Scaling Series, anneal gain 2", {"name": "ss", "anneal": 2.0}),
+    ("Scaling Series, Alg. 1's schedule (anneal='alg1')", {"name": "ss", "anneal": "alg1"}),
     ("Scaling Series + MCMC", {"name": "ss+mcmc", "mcmc_n_walkers": 24, "mcmc_n_steps": 100, "mcmc_burn": 100}),
     ("particle filter (IS), 50k", {"name": "pf", "n_particles": 50000}),
     ("annealed PF, 3k", {"name": "apf", "n_particles": 3000}),
@@ -122,7 +122,8 @@ def run(quick: bool = False) -> str:
         "is never covered, since any turn about its axis is equally right) or in the pose metric modulo "
         "the object's symmetry group ('modulo symmetry', the `cov90` column of the results). Scaling Series "
         "defaults: M = 6, delta* = 2 sigma_pos, prune by threshold (weights >= 1e-3 of the best), "
-        "tau = (delta/delta*)^2. Times are per trial, on one core (each pool worker runs the compiled "
+        "tau = g (delta/delta*)^2 with g = max(1, k / 15) for k contacts (`anneal='auto'`; at 30 contacts "
+        "g = 2, which the 'anneal gain 2' rows of earlier runs measured). Times are per trial, on one core (each pool worker runs the compiled "
         "kernels on one thread, all workers at once); 'p95 s / median' is the 95th percentile of a row's "
         "times over their median.",
         how,
