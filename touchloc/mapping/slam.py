@@ -226,11 +226,15 @@ class TactileSLAM:
         self._unseen_turn = 0.0
         self._unseen_steps = 0
         self._scale_var = self.odometry_scale_sd**2
+        self._scale0 = self.odometry_scale
+        self._scale_obs: list = []
         self._turn_shown = None
         self._turn_draw = None
         self._turn_unseen = 0.0
         self._lever_count = np.zeros(2, dtype=np.int64)
         self._turn_post_var = 0.0
+        self._turn_points = None
+        self._anchor = None
 
     @property
     def pose(self) -> np.ndarray:
@@ -443,6 +447,7 @@ class TactileSLAM:
     _TURN_SCALE_ERROR = 0.1
     _PLAN_UNSEEN = True
     _TURN_BACKFILL = True
+    _TURN_REF = True
     _SMOOTH_FIX_TURNS = True
 
     @staticmethod
@@ -534,6 +539,7 @@ class TactileSLAM:
             use = (gpos.max(axis=0) - gpos.min(axis=0)) >= self._TURN_MIN_RANGE
         ll = pos[:, ~use].sum(axis=1) + nor.sum(axis=1) + self._ll_free(Pb, results)
         self._turn_shown = bool(np.any(use))
+        self._turn_points = c.points[use] if self._turn_shown else None
         if not self._turn_shown:
             # the particles' own turns, drawn again after resampling (see update)
             dn = d[self._systematic(wt, N)]
@@ -555,7 +561,94 @@ class TactileSLAM:
         self._turn_unseen = 0.0
         return self._from_twists(T0, base + dn[:, None] * u), ll
 
-    def _backfill_turn(self, D, T):
+    def _turn_since(self, T):
+        """The step since which this step's correction of the turn accumulated, or None.
+
+        A correction aligns the contacts that show the turn with the map's surface near
+        them, so it measures the odometry's error made since that surface was touched, or
+        since a later step whose turn was corrected already, whichever is later: a mug's
+        handle first touched at step 12 and touched again at step 19 measures the turn of
+        steps 13-19, not the 19 steps since the start. That surface's step is the step of
+        the mapped contact nearest to where the corrected pose ``T`` puts each of this
+        step's contacts that showed the turn (the latest of them). The earliest such step
+        so far is the run's anchor (see :meth:`_reanchor`). None when the map holds no
+        contact.
+        """
+        if not self._TURN_REF:
+            shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
+            return shown[-1] if shown else -1
+        if self._turn_points is None or self.map.n_contacts == 0:
+            return None
+        x = (self._turn_points - T[:3, 3]) @ T[:3, :3]
+        d2 = ((self.map._pts[None, :, :] - x[:, None, :]) ** 2).sum(axis=2)
+        near = np.unique(self.map._pts_owner[np.argmin(d2, axis=1)])
+        batch_step = {st["batch"]: i for i, st in enumerate(self._steps) if st["batch"] is not None}
+        refs = [batch_step[int(b)] for b in near if int(b) in batch_step]
+        if not refs:
+            return None
+        ref = max(refs)
+        self._anchor = ref if self._anchor is None else min(self._anchor, ref)
+        shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
+        return max(ref, shown[-1]) if shown else ref
+
+    def _turn_made(self, since, theta):
+        """(the turn applied over the steps after ``since`` and this one's ``theta``, their count)."""
+        turns = [float(np.linalg.norm(Rotation.from_matrix(st["motion"][0][:3, :3]).as_rotvec()))
+                 for st in self._steps[since + 1:] if st["motion"] is not None]
+        return float(np.sum(turns)) + theta, len(self._steps) - since
+
+    _REANCHOR = True
+    _REANCHOR_MIN = np.deg2rad(1.0)
+
+    def _reanchor(self, raw, T):
+        """Turn the poses so that the feature showing the turn sits where the odometry, at
+        the learned scale, puts it; return the current pose so turned.
+
+        On a body of revolution the turn is seen only once a feature (a mug's handle) has
+        been mapped, at step ``_anchor``; every later correction aligns the turn with that
+        first mapping, so its error then (the odometry's bias over all the turn before it)
+        stays in the whole trajectory. Nothing but the odometry tells the turn up to the
+        anchor, so with the scale learned since, the poses up to it are turned to the
+        odometry integrated at that scale, and every later pose (and the map's touches with
+        each, and the particles) by the anchor's correction: a turn about the odometry's
+        axis, which leaves the body of revolution where it was.
+        """
+        n = len(self._steps)
+        w = Rotation.from_matrix(raw[:3, :3]).as_rotvec()
+        a = w / np.linalg.norm(w)
+        q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
+
+        def about_axis(c):
+            M = np.eye(4)
+            M[:3, :3] = Rotation.from_rotvec(c * a).as_matrix()
+            M[:3, 3] = q - M[:3, :3] @ q
+            return M
+
+        R = self.trajectory[0][:3, :3]
+        corr = []
+        for j in range(self._anchor + 1):
+            D = self._steps[j]["odometry"]
+            if D is not None:
+                R = _scaled_turn(D, self.odometry_scale)[:3, :3] @ R
+            corr.append(float(Rotation.from_matrix(R @ self.trajectory[j + 1][:3, :3].T).as_rotvec() @ a))
+        c_a = corr[-1]
+        if abs(c_a) < self._REANCHOR_MIN:
+            return T
+        moves = [None] * len(self.map.batches)
+        for j in range(n):
+            old = self.trajectory[j + 1]
+            new = about_axis(corr[j] if j <= self._anchor else c_a) @ old
+            self.trajectory[j + 1] = new
+            if self._steps[j]["batch"] is not None:
+                moves[self._steps[j]["batch"]] = np.linalg.inv(new) @ old
+        M = about_axis(c_a)
+        self.particles = np.einsum("ij,njk->nik", M, self.particles)
+        self.info.setdefault("reanchor", []).append((n, self._anchor, float(np.degrees(c_a))))
+        if any(m is not None for m in moves):
+            self.map.relocate(moves)
+        return M @ T
+
+    def _backfill_turn(self, D, T, since=None):
         """Spread a turn's correction over the steps that did not show the turn.
 
         When the contacts show the turn again after steps that did not (a handle touched
@@ -565,10 +658,15 @@ class TactileSLAM:
         turned by their share (about the odometry's axis through their own origin), and
         their touches move with them in the map.
         """
-        shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
-        if not shown:
-            return
-        seg = list(range(shown[-1] + 1, len(self._steps)))
+        if self._TURN_REF:
+            if since is None:
+                return
+            seg = list(range(since + 1, len(self._steps)))
+        else:
+            shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
+            if not shown:
+                return
+            seg = list(range(shown[-1] + 1, len(self._steps)))
         if not seg or any(self._steps[j]["motion"] is None for j in seg):
             return
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
@@ -683,10 +781,14 @@ class TactileSLAM:
         fisher = None
         if sig is not None:
             self._cov, fisher = self._update_cov(self._cov, T, results)
+        since = self._turn_since(T) if (D is not None and self._turn_shown) else None
         if D is not None and self.learn_odometry_scale:
-            self._learn_scale(D, T, results, fisher)
+            self._learn_scale(D, T, results, fisher, since)
         if D is not None and self._turn_shown and self._TURN_BACKFILL:
-            self._backfill_turn(D, T)
+            self._backfill_turn(D, T, since)
+        if (D is not None and self._turn_shown and self._REANCHOR and self.learn_odometry_scale
+                and self._anchor is not None and self._scale_obs):
+            T = self._reanchor(raw, T)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -767,7 +869,28 @@ class TactileSLAM:
     _SCALE_KALMAN = True
     _SCALE_MEAS_SD = np.deg2rad(3.0)
 
-    def _learn_scale(self, D, T, results, fisher):
+    _SCALE_MIXTURE = True
+    _SCALE_INLIER = 0.8
+
+    def _scale_posterior(self):
+        """(median, variance) of the scale's posterior on a grid: the prior, and each
+        measured scale z an inlier N(s, sd) or, with probability 1 - _SCALE_INLIER, an
+        outlier uniform over the scale's range."""
+        lo, hi = self._SCALE_RANGE
+        g = np.linspace(lo, hi, 901)
+        s0 = self._scale0
+        sd0 = max(self.odometry_scale_sd, 1e-6) * s0
+        lp = -0.5 * ((g - s0) / sd0) ** 2
+        z, zs = (np.array(v) for v in zip(*self._scale_obs))
+        dens = np.exp(-0.5 * ((g[:, None] - z) / zs) ** 2) / (np.sqrt(2 * np.pi) * zs)
+        lp += np.log(self._SCALE_INLIER * dens + (1 - self._SCALE_INLIER) / (hi - lo)).sum(axis=1)
+        p = np.exp(lp - lp.max())
+        p /= p.sum()
+        med = float(g[np.searchsorted(np.cumsum(p), 0.5)])
+        mean = float(p @ g)
+        return med, float(p @ (g - mean) ** 2) / s0**2
+
+    def _learn_scale(self, D, T, results, fisher, since=None):
         """Move the odometry's turn scale by a fraction of the turn the map corrected away.
 
         The map's correction of the predicted pose, projected on the odometry's turn axis,
@@ -781,11 +904,17 @@ class TactileSLAM:
         showed one, not this step's alone.
 
         With the turn estimated apart (:meth:`_turn_aware`), a step shows the turn when
-        some contact moved it, and the update is a Kalman one: the correction c after an
-        unseen turn U measures the scale's relative error e as ``c = e U``, with the
-        odometry's noise over those steps and the grid posterior's variance (at least
-        ``_SCALE_MEAS_SD``) as its noise, from a prior of ``odometry_scale_sd``; a correction
-        beyond three standard deviations of that is ignored.
+        some contact moved it: the correction c after a turn U made since the surface it
+        was measured against was touched (:meth:`_turn_since`) measures the scale's
+        relative error e as ``c = e U``, with the odometry's noise over those steps and the
+        grid posterior's variance (at least ``_SCALE_MEAS_SD``) as its noise. Each such
+        measurement of the scale is kept, and the scale is the median of its posterior on
+        a grid (:meth:`_scale_posterior`): the prior of ``odometry_scale_sd`` about the
+        start, and every measurement either right, with its noise, or (one in five) an
+        outlier, uniform over the scale's range, because one handle contact does match the
+        wrong face of a handle. (Before: a Kalman update from each correction, with U the
+        turn since the last step that showed one, and corrections beyond three standard
+        deviations ignored; ``_TURN_REF`` and ``_SCALE_MIXTURE`` off.)
         """
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
@@ -815,9 +944,21 @@ class TactileSLAM:
         if self._turn_shown is not None and self._SCALE_KALMAN:
             # the correction is the relative scale error times the turn made unseen, U, plus the
             # odometry's noise over those steps and the correction's own error: a Kalman update
-            U = self._unseen_turn
-            r = self.odometry_noise[1] ** 2 * self._unseen_steps + max(self._turn_post_var, self._SCALE_MEAS_SD**2)
+            U, n = self._unseen_turn, self._unseen_steps
+            if self._TURN_REF:
+                if since is None:
+                    return
+                U, n = self._turn_made(since, theta)
+            r = self.odometry_noise[1] ** 2 * n + max(self._turn_post_var, self._SCALE_MEAS_SD**2)
             S = U * U * self._scale_var + r
+            if self._SCALE_MIXTURE:
+                self._scale_obs.append((self.odometry_scale * (1.0 + innov / U), self.odometry_scale * np.sqrt(r) / U))
+                s, self._scale_var = self._scale_posterior()
+                self._unseen_turn = 0.0
+                self._unseen_steps = 0
+                self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
+                self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
+                return
             if innov * innov > 9.0 * S:
                 # beyond three standard deviations of what a scale error and the noise explain
                 return
