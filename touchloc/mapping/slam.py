@@ -578,8 +578,9 @@ class TactileSLAM:
         contact.
         """
         if not self._TURN_REF:
+            # (as before: the last step that showed the turn)
             shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
-            return shown[-1] if shown else -1
+            return shown[-1] if shown else None
         if self._turn_points is None or self.map.n_contacts == 0:
             return None
         x = (self._turn_points - T[:3, 3]) @ T[:3, :3]
@@ -651,25 +652,21 @@ class TactileSLAM:
             self.map.relocate(moves)
         return M @ T
 
-    def _backfill_turn(self, D, T, since=None):
+    def _backfill_turn(self, D, T, since):
         """Spread a turn's correction over the steps that did not show the turn.
 
         When the contacts show the turn again after steps that did not (a handle touched
         again after touches on a mug's body), the correction this step makes is the
-        odometry's error accumulated since the last step that showed it; a biased
-        odometry accumulates it in proportion to the turn. The poses of those steps are
+        odometry's error accumulated since step ``since`` (:meth:`_turn_since`: the step
+        whose mapped surface the correction met, or the last step that showed the turn if
+        later; None: nothing to spread); a biased odometry accumulates it in proportion
+        to the turn. The poses of those steps are
         turned by their share (about the odometry's axis through their own origin), and
         their touches move with them in the map.
         """
-        if self._TURN_REF:
-            if since is None:
-                return
-            seg = list(range(since + 1, len(self._steps)))
-        else:
-            shown = [i for i, st in enumerate(self._steps) if st.get("turn_shown")]
-            if not shown:
-                return
-            seg = list(range(shown[-1] + 1, len(self._steps)))
+        if since is None:
+            return
+        seg = list(range(since + 1, len(self._steps)))
         if not seg or any(self._steps[j]["motion"] is None for j in seg):
             return
         w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
@@ -953,21 +950,17 @@ class TactileSLAM:
                     return
                 U, n = self._turn_made(since, theta)
             r = self.odometry_noise[1] ** 2 * n + max(self._turn_post_var, self._SCALE_MEAS_SD**2)
-            S = U * U * self._scale_var + r
             if self._SCALE_MIXTURE:
                 self._scale_obs.append((self.odometry_scale * (1.0 + innov / U), self.odometry_scale * np.sqrt(r) / U))
                 s, self._scale_var = self._scale_posterior()
-                self._unseen_turn = 0.0
-                self._unseen_steps = 0
-                self.odometry_scale = float(np.clip(s, *self._SCALE_RANGE))
-                self.info.setdefault("odometry_scale", []).append(self.odometry_scale)
-                return
-            if innov * innov > 9.0 * S:
-                # beyond three standard deviations of what a scale error and the noise explain
-                return
-            K = self._scale_var * U / S
-            s = self.odometry_scale * (1.0 + K * innov)
-            self._scale_var = (1.0 - K * U) * self._scale_var
+            else:
+                S = U * U * self._scale_var + r
+                if innov * innov > 9.0 * S:
+                    # beyond three standard deviations of what a scale error and the noise explain
+                    return
+                K = self._scale_var * U / S
+                s = self.odometry_scale * (1.0 + K * innov)
+                self._scale_var = (1.0 - K * U) * self._scale_var
         else:
             s = self.odometry_scale * (1.0 + self._SCALE_GAIN * innov / self._unseen_turn)
         self._unseen_turn = 0.0
