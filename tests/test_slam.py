@@ -519,6 +519,37 @@ def test_in_hand_mug_turn_held_by_its_handle():
     assert abs(moved - off_before) < 0.2 * off_before   # the present turns with the anchor
 
 
+
+def test_in_hand_mug_turn_held_by_the_scale_its_handle_touches_agree_on():
+    """Once the handle's touches from different visits agree under one scale, that scale
+    holds, and every turn up to the last step that showed the turn is the odometry's at it
+    (seed 4 of the same world, where the fit passes its gate after 77 actions)."""
+    from touchloc.data import load_object
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mug = load_object("mug")
+    world = MovingWorld(mug, rng=4, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05,
+                        noise_pos=0.001, noise_nor=np.deg2rad(5.0))
+    slam = TactileSLAM(_box(mug, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
+                       learn_odometry_scale=True, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0), rng=4)
+    explore(world, _box(mug, 0.06), 96, slam=slam, fingers=3, rng=4)
+    ang = np.array([np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude())
+                    for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
+    per_turn = [np.median(ang[i * 24:(i + 1) * 24]) for i in range(4)]
+    assert max(per_turn) < 5.0
+    assert slam._feature_fit is not None and slam.odometry_scale == slam._feature_fit
+    assert abs(slam.odometry_scale - 1 / 1.05) < 0.01
+    last = max(j for j, st in enumerate(slam._steps) if st["turn_shown"])
+    R = slam.trajectory[0][:3, :3]
+    off = []
+    for j, st in enumerate(slam._steps[:last + 1]):
+        R = Rotation.from_rotvec(slam.odometry_scale * Rotation.from_matrix(st["odometry"][:3, :3]).as_rotvec()).as_matrix() @ R
+        off.append(np.degrees(Rotation.from_matrix(R @ slam.trajectory[j + 1][:3, :3].T).as_rotvec()[2]))
+    # (the smoother, run since, may revise the turns of steps that showed it, by a degree or two)
+    assert np.median(np.abs(off)) < 0.1 and np.max(np.abs(off)) < 2.0
+
+
 def test_odometry_scale_posterior_shrugs_off_a_wrong_correction(milk):
     """One handle contact can match the wrong face of the handle: the scale's posterior
     treats each measured scale as right or (one in five) an outlier, so one measurement far
@@ -536,3 +567,70 @@ def test_odometry_scale_posterior_shrugs_off_a_wrong_correction(milk):
     slam._scale_obs = [(0.90, 0.05)]
     s_one, _ = slam._scale_posterior()
     assert 0.90 < s_one < 0.975
+
+
+def _turned_mug_steps(S, handle_every, rng):
+    """A mug turned 15 deg per step about z with an odometry 5 % too large: the true poses,
+    the odometry's increments and each step's world-frame touches (three on the body, one on
+    the handle every ``handle_every`` steps)."""
+    from touchloc.data import load_object
+    from touchloc.models.contacts import Contacts
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mug = load_object("mug")
+    p, n, _ = mug.sample_surface(4000, rng=rng)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    body, handle = np.flatnonzero((rho < 0.042) & (p[:, 2] > 0.01)), np.flatnonzero(rho > 0.058)
+    true, odo, touches = [], [], []
+    turn = 0.0
+    for s in range(S):
+        turn += np.deg2rad(15.0)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, turn]).as_matrix()
+        D = np.eye(4)
+        D[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 1.05 * np.deg2rad(15.0)]).as_matrix()
+        idx = list(rng.choice(body, 3))
+        if s % handle_every == 0:
+            idx.append(rng.choice(handle))
+        pts = p[idx] @ T[:3, :3].T + rng.normal(scale=0.001, size=(len(idx), 3))
+        true.append(T)
+        odo.append(D)
+        touches.append(Contacts(pts, n[idx] @ T[:3, :3].T))
+    return mug, true, odo, touches
+
+
+def test_feature_scale_fits_the_odometry_under_which_the_handle_touches_agree():
+    """The handle's touches from visits many turns apart land on one handle only under the
+    right scale: with the trajectory at the odometry's own turns (5 % too far), the fit
+    finds 1 / 1.05, and it abstains when the features cannot tell."""
+    def at_odometry(S, handle_every, seed):
+        """A SLAM whose trajectory follows the odometry's own turns, and the last step's inputs."""
+        mug, true, odo, touches = _turned_mug_steps(S, handle_every, np.random.default_rng(seed))
+        slam = TactileSLAM(_box(mug, 0.03), learn_odometry_scale=True, rng=0)
+        R = np.eye(3)
+        for D, c in zip(odo[:-1], touches[:-1]):
+            R = D[:3, :3] @ R
+            T = np.eye(4)
+            T[:3, :3] = R
+            slam.trajectory.append(T)
+            slam._steps.append(dict(contacts=c, odometry=D))
+        T_now = np.eye(4)
+        T_now[:3, :3] = odo[-1][:3, :3] @ R
+        return mug, slam, odo, touches, (odo[-1], T_now, touches[-1])
+
+    mug, slam, odo, touches, last = at_odometry(48, 3, 3)
+    s = slam._feature_scale(*last)
+    assert s is not None and abs(s - 1 / 1.05) < 0.004
+    margin = slam.info["feature_scale"][-1][4]
+    assert margin > TactileSLAM._FEATURE_MARGIN
+    # beyond _FEATURE_MAX features an even subset over the run is fitted
+    many, last_many = at_odometry(96, 1, 5)[1::3]
+    many._FEATURE_MAX = 40
+    s40 = many._feature_scale(*last_many)
+    assert many.info["feature_scale"][-1][3] > 80 and s40 is not None and abs(s40 - 1 / 1.05) < 0.004
+    # the handle touched in one visit only: no partner from another visit, no fit
+    lone = TactileSLAM(_box(mug, 0.03), learn_odometry_scale=True, rng=0)
+    lone.trajectory += slam.trajectory[1:5]
+    lone._steps = slam._steps[:4]
+    assert lone._feature_scale(odo[4], slam.trajectory[5], touches[4]) is None

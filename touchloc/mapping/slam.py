@@ -148,6 +148,11 @@ class TactileSLAM:
         turns a few per cent too large or too small): each step where the map corrects the
         predicted turn moves the scale by a small fraction of that correction. The
         current value is ``.odometry_scale`` (its start until there is a map of 30 contacts).
+        On an object whose turn only a small feature shows (a mug's handle), once the
+        feature's touches from visits at least four steps apart agree clearly better under
+        one scale than under any other (odometry alone, no per-step correction), that scale
+        holds and every turn so far is set to the odometry's at it (docs/slam.md, "The
+        scale the handle's touches agree on").
         Off by default: with an unbiased odometry it only adds noise of about a per cent.
     odometry_scale : float
         The scale on the odometry's turn to start from, in [0.8, 1.25]: a calibration of
@@ -238,6 +243,7 @@ class TactileSLAM:
         self._turn_post_var = 0.0
         self._turn_points = None
         self._anchor = None
+        self._feature_fit = None
 
     @property
     def pose(self) -> np.ndarray:
@@ -604,7 +610,7 @@ class TactileSLAM:
     _REANCHOR = True
     _REANCHOR_MIN = np.deg2rad(1.0)
 
-    def _reanchor(self, raw, T):
+    def _reanchor(self, raw, T, anchor=None):
         """Turn the poses so that the feature showing the turn sits where the odometry, at
         the learned scale, puts it; return the current pose so turned.
 
@@ -618,6 +624,7 @@ class TactileSLAM:
         axis, which leaves the body of revolution where it was.
         """
         n = len(self._steps)
+        anchor = self._anchor if anchor is None else anchor
         w = Rotation.from_matrix(raw[:3, :3]).as_rotvec()
         a = w / np.linalg.norm(w)
         q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
@@ -630,27 +637,124 @@ class TactileSLAM:
 
         R = self.trajectory[0][:3, :3]
         corr = []
-        for j in range(self._anchor + 1):
-            D = self._steps[j]["odometry"]
+        for j in range(anchor + 1):
+            D = raw if j == n else self._steps[j]["odometry"]
             if D is not None:
                 R = _scaled_turn(D, self.odometry_scale)[:3, :3] @ R
-            corr.append(float(Rotation.from_matrix(R @ self.trajectory[j + 1][:3, :3].T).as_rotvec() @ a))
+            Tj = T if j == n else self.trajectory[j + 1]
+            corr.append(float(Rotation.from_matrix(R @ Tj[:3, :3].T).as_rotvec() @ a))
         c_a = corr[-1]
-        if abs(c_a) < self._REANCHOR_MIN:
+        if max(abs(c) for c in (corr if anchor == n else corr[-1:])) < self._REANCHOR_MIN:
             return T
         moves = [None] * len(self.map.batches)
         for j in range(n):
             old = self.trajectory[j + 1]
-            new = about_axis(corr[j] if j <= self._anchor else c_a) @ old
+            new = about_axis(corr[j] if j <= anchor else c_a) @ old
             self.trajectory[j + 1] = new
             if self._steps[j]["batch"] is not None:
                 moves[self._steps[j]["batch"]] = np.linalg.inv(new) @ old
         M = about_axis(c_a)
         self.particles = np.einsum("ij,njk->nik", M, self.particles)
-        self.info.setdefault("reanchor", []).append((n, self._anchor, float(np.degrees(c_a))))
+        self.info.setdefault("reanchor", []).append((n, anchor, float(np.degrees(c_a))))
         if any(m is not None for m in moves):
-            self.map.relocate(moves)
+            # (re-anchoring every step: moves below a tenth of the sensor's noise are none)
+            self.map.relocate(moves, tol=0.1 * self.map.sigma_pos if anchor == n else 0.0)
         return M @ T
+
+    _FEATURE_SCALE = True
+    _FEATURE_OUT = 0.010
+    _FEATURE_BIN = 0.010
+    _FEATURE_SIGMA = (0.003, 0.3)
+    _FEATURE_GAP = 4
+    _FEATURE_MIN = 6
+    _FEATURE_MARGIN = 6.0
+    _FEATURE_STEP = 0.001
+    _FEATURE_MAX = 150
+
+    def _feature_scale(self, raw, T, c_now):
+        """The odometry's turn scale under which the touches of the object's features agree.
+
+        A feature is a contact farther from the odometry's axis, by ``_FEATURE_OUT``, than
+        the median of the contacts at its height (a mug's handle beside its body). With the
+        turn of every step set to the odometry's turn so far times a scale s, each feature
+        is placed in the object frame (point and normal), and scored by its nearest feature
+        from a step at least ``_FEATURE_GAP`` steps away (squared distance whitened by
+        ``_FEATURE_SIGMA``, capped at 9); the cost over s adds the scale's prior. Returns the
+        best s, or None unless at least ``_FEATURE_MIN`` features have a partner within the
+        cap there and every s more than 0.01 away costs ``_FEATURE_MARGIN`` more (while the
+        handle has been touched only 10-20 times, chance alignments under a wrong scale
+        score nearly as well as the right one).
+
+        The turn the filter corrected at each step plays no part: only the odometry, the
+        scale and the rest of each pose (its position and tilt). A step's turn is placed at
+        ``s * (odometry's turn so far) - (the estimate's turn)`` relative to its estimate.
+        """
+        n = len(self._steps)
+        w = Rotation.from_matrix(raw[:3, :3]).as_rotvec()
+        a = w / np.linalg.norm(w)
+        turn = [0.0 if st["odometry"] is None else
+                float(Rotation.from_matrix(st["odometry"][:3, :3]).as_rotvec() @ a) for st in self._steps]
+        Dc = np.cumsum(turn + [float(w @ a)])
+        R0 = self.trajectory[0][:3, :3]
+        every = []
+        for j in range(n + 1):
+            c = c_now if j == n else self._steps[j]["contacts"]
+            if c is None or c.normals is None:
+                continue
+            Tj = T if j == n else self.trajectory[j + 1]
+            y = c.points - Tj[:3, 3]
+            z = y @ a
+            every.append((j, Tj, y, c.normals, np.linalg.norm(y - np.outer(z, a), axis=1), np.floor(z / self._FEATURE_BIN)))
+        if not every:
+            return None
+        rho, zb = np.concatenate([e[4] for e in every]), np.concatenate([e[5] for e in every])
+        prof = {b: float(np.median(rho[zb == b])) for b in np.unique(zb)}
+        sp, sn = self._FEATURE_SIGMA
+        u1, u2, u3, A, B, J = [], [], [], [], [], []
+        for j, Tj, y, nor, r, b in every:
+            out = r > np.array([prof[k] for k in b]) + self._FEATURE_OUT
+            if not out.any():
+                continue
+            v = np.concatenate([y[out] / sp, nor[out] / sn])     # points, then normals
+            par = np.outer(v @ a, a)
+            m = int(out.sum())
+            for lst, x in ((u1, par), (u2, v - par), (u3, np.cross(a, v))):
+                x = x @ Tj[:3, :3]
+                lst.append(np.concatenate([x[:m], x[m:]], axis=1))
+            te = float(Rotation.from_matrix(Tj[:3, :3] @ R0.T).as_rotvec() @ a)
+            A += [Dc[j]] * m
+            B += [te] * m
+            J += [j] * m
+        if len(J) < self._FEATURE_MIN:
+            return None
+        u1, u2, u3 = np.concatenate(u1), np.concatenate(u2), np.concatenate(u3)
+        A, B, J = np.array(A), np.array(B), np.array(J)
+        n_feat = len(J)
+        if n_feat > self._FEATURE_MAX:
+            # (the cost is quadratic in the features: an even subset over the run)
+            keep = np.linspace(0, len(J) - 1, self._FEATURE_MAX).round().astype(int)
+            u1, u2, u3, A, B, J = u1[keep], u2[keep], u3[keep], A[keep], B[keep], J[keep]
+        far = np.abs(J[:, None] - J[None, :]) >= self._FEATURE_GAP
+        lo, hi = self._SCALE_RANGE
+        g = np.arange(lo, hi + 1e-9, self._FEATURE_STEP)
+        s0, sd0 = self._scale0, max(self.odometry_scale_sd, 1e-6) * self._scale0
+        cost = ((g - s0) / sd0) ** 2
+        matched = np.zeros(len(g), int)
+        for k in range(0, len(g), 32):
+            c = g[k:k + 32, None] * A[None] - B[None]
+            c = (c + np.pi) % (2 * np.pi) - np.pi
+            # each feature turned about the axis (through its step's origin) by c
+            x = u1[None] + np.cos(c)[..., None] * u2[None] - np.sin(c)[..., None] * u3[None]
+            d2 = np.where(far[None], ((x[:, :, None, :] - x[:, None, :, :]) ** 2).sum(-1), np.inf).min(axis=2)
+            cost[k:k + 32] += np.minimum(d2, 9.0).sum(axis=1)
+            matched[k:k + 32] = (d2 < 9.0).sum(axis=1)
+        i = int(np.argmin(cost))
+        away = np.abs(g - g[i]) > 0.01
+        margin = float(cost[away].min() - cost[i]) if away.any() else np.inf
+        self.info.setdefault("feature_scale", []).append((n, float(g[i]), int(matched[i]), n_feat, margin))
+        if matched[i] < self._FEATURE_MIN or margin < self._FEATURE_MARGIN:
+            return None
+        return float(g[i])
 
     def _backfill_turn(self, D, T, since):
         """Spread a turn's correction over the steps that did not show the turn.
@@ -781,14 +885,28 @@ class TactileSLAM:
         fisher = None
         if sig is not None:
             self._cov, fisher = self._update_cov(self._cov, T, results)
-        since = self._turn_since(T) if (D is not None and self._turn_shown) else None
-        if D is not None and self.learn_odometry_scale:
-            self._learn_scale(D, T, results, fisher, since)
-        if D is not None and self._turn_shown and self._TURN_BACKFILL:
-            self._backfill_turn(D, T, since)
-        if (D is not None and self._turn_shown and self._REANCHOR and self.learn_odometry_scale
-                and self._anchor is not None and self._scale_obs):
-            T = self._reanchor(raw, T)
+        hits = [r.contact for r in results if r.contact is not None]
+        c = Contacts.concatenate(hits) if hits else None
+        shown = D is not None and bool(self._turn_shown)
+        if shown and self._FEATURE_SCALE and self.learn_odometry_scale and self.odometry_scale_sd > 0.0:
+            fit = self._feature_scale(raw, T, c)
+            if fit is not None:
+                self._feature_fit = fit
+        if shown and self._feature_fit is not None:
+            # from the first fit on, the features' agreement holds the scale, and every turn
+            # is the odometry's at that scale
+            self.odometry_scale = self._feature_fit
+            self.info.setdefault("odometry_scale", []).append(self._feature_fit)
+            T = self._reanchor(raw, T, anchor=len(self._steps))
+        else:
+            since = self._turn_since(T) if shown else None
+            if D is not None and self.learn_odometry_scale:
+                self._learn_scale(D, T, results, fisher, since)
+            if shown and self._TURN_BACKFILL:
+                self._backfill_turn(D, T, since)
+            if (shown and self._REANCHOR and self.learn_odometry_scale and self._anchor is not None
+                    and self._scale_obs):
+                T = self._reanchor(raw, T)
         self.trajectory.append(T)
         local = transform_results(results, np.linalg.inv(T))
         keep = []
@@ -800,8 +918,6 @@ class TactileSLAM:
             keep.append(r)
         if keep:
             self.map.update(keep)
-        hits = [r.contact for r in results if r.contact is not None]
-        c = Contacts.concatenate(hits) if hits else None
         self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
                                 batch=len(self.map.batches) - 1 if keep else None, turn_shown=self._turn_shown,
                                 odometry=raw))
