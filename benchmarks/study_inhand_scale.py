@@ -1,7 +1,7 @@
 """The in-hand mug with its odometry learned online, known, or calibrated on a box.
 
     python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug] [--settings 0,1,2,3,4]
-        [--calibrate-on milk] [--before]
+        [--calibrate-on milk] [--before | --without-feature-fit]
 
 The SLAM benchmark's in-hand world (15 deg turns about z, an odometry 5 % too large, 96
 three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
@@ -18,9 +18,10 @@ three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
 Reports the growth of the orientation error from the first turn to the fourth (the
 median error within each turn of 24 actions; the benchmark's measure), how many runs stay
 within 5 and 10 degrees, the error in the fourth turn, how many runs stay within 10 degrees
-in every turn, and F@5mm of the final map. ``--before`` runs the in-hand estimator as it
-was before the corrections counted from the step whose surface they were measured against,
-the scale's robust posterior and the re-anchoring (``TactileSLAM._TURN_REF`` and
+in every turn, and F@5mm of the final map. ``--without-feature-fit`` runs it without the
+scale fitted to where the handle's touches agree (``TactileSLAM._FEATURE_SCALE`` off);
+``--before`` also without the corrections counted from the step whose surface they were
+measured against, the scale's robust posterior and the re-anchoring (``_TURN_REF`` and
 ``_SCALE_MIXTURE`` off), in the same processes. Two worker processes; about fifteen
 minutes for the five settings and twenty seeds on two cores. Prints a Markdown table; nothing
 is written to docs/ (docs/benchmarks.md, "In-hand mug", and docs/slam.md, "What a known scale
@@ -51,7 +52,7 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
              "calibrated"))
 
 
-def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False):
+def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions)."""
     import contextlib
@@ -72,6 +73,8 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False):
                         inhand=True, step=np.deg2rad(15.0), bias=0.05)
     if before:
         TactileSLAM._TURN_REF = TactileSLAM._SCALE_MIXTURE = False
+    if before or not fit:
+        TactileSLAM._FEATURE_SCALE = False
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
                        motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
@@ -88,14 +91,14 @@ def _run(args) -> tuple:
     scale held or started from; the turn noise assumed, rad; the median error per turn, deg)."""
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd, noise, before = args
+    mesh, seed, scale, sd, noise, before, fit = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
-        cal = inhand_run(scale, seed, 1.0, 0.05, before=before)[2].calibrate_odometry()
+        cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit)[2].calibrate_odometry()
         scale = cal.scale
         if noise == "calibrated":
             noise = cal.turn_noise
-    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before)
+    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit)
     return (turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
             turns)
 
@@ -112,7 +115,10 @@ def main(argv=None) -> int:
     ap.add_argument("--calibrate-on", default="milk", help="the mesh of the calibration runs (default milk)")
     ap.add_argument("--settings", default="0,1,2,3,4", help="which rows to run, a comma list of 0-4 (default all)")
     ap.add_argument("--before", action="store_true",
-                    help="the in-hand estimator before the anchored corrections and the scale's robust posterior")
+                    help="the in-hand estimator before the feature fit, the anchored corrections and the scale's "
+                         "robust posterior")
+    ap.add_argument("--without-feature-fit", action="store_true",
+                    help="the in-hand estimator without the scale fitted to where the handle's touches agree")
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
@@ -122,7 +128,8 @@ def main(argv=None) -> int:
     rows = []
     with ProcessPoolExecutor(2) as ex:
         for label, scale, sd, noise in settings:
-            res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before) for s in seeds]))
+            res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit)
+                                     for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
             t = np.array([r[4] for r in res])
@@ -136,7 +143,9 @@ def main(argv=None) -> int:
                 print(f"{label}: calibrated scales {np.median(c):.4f} ({c.min():.4f}-{c.max():.4f}), "
                       f"per seed {' / '.join(f'{v:.4f}' for v in c)}; turn noise (deg) {np.median(t):.2f} "
                       f"({t.min():.2f}-{t.max():.2f})", file=sys.stderr, flush=True)
-    print(f"{args.mesh}, seeds {args.seeds}{' (the estimator before)' if args.before else ''}\n")
+    which = (" (the estimator before)" if args.before else
+             " (without the feature fit)" if args.without_feature_fit else "")
+    print(f"{args.mesh}, seeds {args.seeds}{which}\n")
     print("| scale | median growth (deg) | runs within 5 / 10 deg | 75th percentile / worst (deg) | "
           "error in turn 4, median (deg) | runs within 10 deg in every turn | F@5mm, median (range) |")
     print("|---|---|---|---|---|---|---|")
