@@ -189,7 +189,13 @@ class TactileSLAM:
     info : dict
         ``dropped`` (contacts outside the box), ``ess`` per update, ``smoothing`` (one
         record per smoother run: pairs, iterations, cost before/after, accepted, the
-        largest shift of a contact in the map, m).
+        largest shift of a contact in the map, m). With ``learn_odometry_scale`` on an
+        object whose turn only a feature shows, also ``odometry_scale`` (its history),
+        ``turn_search`` (one record per step whose contacts moved the turn),
+        ``feature_scale`` (one record per fit of the scale to the feature's touches: the
+        step, the best scale, the features matched there, the features, the margin over
+        any scale 0.01 away) and ``reanchor`` (step, anchor, the anchor's correction in
+        degrees).
     """
 
     def __init__(self, bounds, *, motion=(0.002, np.deg2rad(2.0)), odometry_noise=(0.001, np.deg2rad(1.0)),
