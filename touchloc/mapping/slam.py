@@ -628,6 +628,12 @@ class TactileSLAM:
         odometry integrated at that scale, and every later pose (and the map's touches with
         each, and the particles) by the anchor's correction: a turn about the odometry's
         axis, which leaves the body of revolution where it was.
+
+        ``anchor`` (default ``_anchor``) may be ``len(self._steps)``, the current step: then
+        every pose, ``T`` included, is turned onto the scaled odometry (the scale fitted to
+        the features' touches, :meth:`_feature_scale`). Nothing moves unless some pose's
+        correction (the anchor's alone, for an earlier anchor) reaches ``_REANCHOR_MIN``,
+        and the map ignores moves below a tenth of the sensor's noise.
         """
         n = len(self._steps)
         anchor = self._anchor if anchor is None else anchor
