@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     same = all(np.array_equal(c[0], b[0]) for c in cur for b in base)
     rows = []
     for lo, hi in BINS:
-        meds_c, meds_b, ratios = [], [], []
+        meds_c, meds_b, ratios, p95_c, p95_b = [], [], [], [], []
         for c, b in zip(cur, base):
             cc, tc = np.array(c[0]), np.array(c[1])
             bc, tb = np.array(b[0]), np.array(b[1])
@@ -56,16 +56,19 @@ def main(argv=None) -> int:
                 continue
             meds_c.append(np.median(tc[sc]) * 1e3)
             meds_b.append(np.median(tb[sb]) * 1e3)
+            p95_c.append(np.percentile(tc[sc], 95) * 1e3)
+            p95_b.append(np.percentile(tb[sb], 95) * 1e3)
             if same:
                 ratios.append(np.median(tb[sb] / tc[sc]))
         if meds_c:
             rows.append([f"{lo + 1}-{hi}", " / ".join(f"{m:.0f}" for m in meds_b),
                          " / ".join(f"{m:.0f}" for m in meds_c),
+                         " / ".join(f"{m:.0f}" for m in p95_b), " / ".join(f"{m:.0f}" for m in p95_c),
                          " / ".join(f"{x:.2f}x" for x in ratios) if same else "(other touches)"])
     print(f"Three-finger pushed milk carton, {a.rounds} rounds, load average {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores at the end; the two versions took {'the same' if same else 'other'} touches.\n")
     print(table(["contacts in the map", f"{a.rev} median (ms), per round", "this checkout median (ms), per round",
-                 "paired ratio per round"], rows))
+                 f"{a.rev} p95 (ms)", "this checkout p95 (ms)", "paired ratio per round"], rows))
     return 0
 
 

@@ -325,9 +325,10 @@ def test_the_parallel_warmup_parts_cover_every_kernel_of_warm_kernels():
         from touchloc.models import _kernels as K, _bounds as B
         from touchloc.belief import _cover as C
         from touchloc.models import integrated as I
+        from touchloc.mapping import gpis as G
 
         def signatures():
-            return {(m.__name__, n): set(d.signatures) for m in (K, B, C, I) for n, d in vars(m).items()
+            return {(m.__name__, n): set(d.signatures) for m in (K, B, C, I, G) for n, d in vars(m).items()
                     if isinstance(d, numba.core.registry.CPUDispatcher)}
 
         assert W.PARTS == ("serial", "parallel")

@@ -642,3 +642,42 @@ def test_gpis_factor_in_two_parts_and_lazily_dropped_pool_points_agree_with_a_re
     gp.relocate(X, gp.y, gp.Q, start=120)
     assert len(gp._Qp) == len(gp.Q)                         # compacted
     check()
+
+
+def test_gpis_kernel_blocks_are_the_derivatives_of_the_value_kernel_and_ignore_row_order():
+    """The compiled kernel against finite differences of its own value block (the gradient
+    blocks are derivatives of k(x, y) in x and y), and against itself with rows and columns
+    shuffled: shuffling breaks the runs of equal points whose exponential it reuses."""
+    from touchloc.mapping.gpis import GPIS
+
+    gp = GPIS(0.02, 0.01, lambda X: (np.zeros(len(X)), np.zeros((len(X), 3))))
+    rng = np.random.default_rng(7)
+    P, Q = rng.normal(scale=0.02, size=(5, 3)), rng.normal(scale=0.02, size=(4, 3))
+    kinds = np.array([-1, 0, 1, 2])
+    X1, k1 = np.repeat(P, 4, axis=0), np.tile(kinds, 5)       # contacts: a value row and 3 gradient rows each
+    X2, k2 = np.vstack([np.repeat(Q, 4, axis=0), Q]), np.concatenate([np.tile(kinds, 4), np.full(4, -1)])
+    K = gp.kernel(X1, k1, X2, k2)
+
+    def value(x, y):
+        return gp.kernel(x[None], np.array([-1]), y[None], np.array([-1]))[0, 0]
+
+    h = 1e-7
+    E = np.eye(3) * h
+    for i in range(len(X1)):
+        for j in range(len(X2)):
+            x, y, a, b = X1[i], X2[j], k1[i], k2[j]
+            if a < 0 and b < 0:
+                ref = value(x, y)
+            elif a < 0:
+                ref = (value(x, y + E[b]) - value(x, y - E[b])) / (2 * h)
+            elif b < 0:
+                ref = (value(x + E[a], y) - value(x - E[a], y)) / (2 * h)
+            else:
+                ref = (value(x + E[a], y + E[b]) - value(x + E[a], y - E[b]) - value(x - E[a], y + E[b])
+                       + value(x - E[a], y - E[b])) / (4 * h * h)
+            assert abs(K[i, j] - ref) <= 1e-5 * np.max(np.abs(K)), (i, j, a, b, K[i, j], ref)
+    r, c = rng.permutation(len(X1)), rng.permutation(len(X2))
+    assert np.allclose(gp.kernel(X1[r], k1[r], X2[c], k2[c]), K[np.ix_(r, c)], rtol=1e-12, atol=0)
+    # symmetric where it must be: K(X, X) of values and gradients
+    S = gp.kernel(X1, k1, X1, k1)
+    assert np.allclose(S, S.T, rtol=1e-12, atol=1e-30)

@@ -119,6 +119,7 @@ def warm_kernels(*, full: bool = False) -> float:
     finally:
         _cache.suspended -= 1
     _warm_cover()
+    _warm_mapping()
     return time.perf_counter() - t0
 
 
@@ -141,6 +142,7 @@ def _warm_part(part, full, conn=None) -> int:
         _warm(obj, full and part == "serial", forms=(part,))
         if part == "serial":
             _warm_cover()
+            _warm_mapping()
     if conn is not None:
         conn.send(cn.count)
         conn.close()
@@ -252,6 +254,14 @@ def _warm_cover():
     C.quat_poses(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros(1, dtype=np.int64), np.zeros((1, 3)))
     C.matrix_quats(np.eye(3)[None])
     C._beyond(X, A, anchor, 1.0)
+
+
+def _warm_mapping():
+    """The shape map's kernel matrix (values and gradient components)."""
+    from .mapping.gpis import _kernel_matrix
+
+    X, k = np.zeros((2, 3)), np.array([-1, 0], dtype=np.int64)
+    _kernel_matrix(X, k, X, k, 1.0, 1.0)
 
 
 class SetUp:
