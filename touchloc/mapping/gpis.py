@@ -45,9 +45,10 @@ A contact's four rows (its value and the three gradient components) sit at one p
 the kernel's exponential depends only on the points: the kernel matrix is one compiled
 pass that computes it once per pair of distinct points (:func:`_kernel_matrix`), and the
 mean and its gradient at query points sum the rows' weights per point before the
-exponentials (:meth:`GPIS._site_weights`). Against row-by-row numpy (masks and fancy
-indexing per block), this made the kernel matrix about 20x faster at 1000 x 600 rows and
-a tactile SLAM update 1.3-1.7x (docs/benchmarks.md, "Update time as the map grows").
+exponentials (:meth:`GPIS._site_weights`, kept until the data change). Against
+row-by-row numpy (masks and fancy indexing per block), this made the kernel matrix about
+20x faster at 1000 x 600 rows and a tactile SLAM update 1.3-1.7x (docs/benchmarks.md,
+"Update time as the map grows").
 """
 
 from __future__ import annotations
@@ -159,6 +160,7 @@ class GPIS:
         self._nl = 0                     # rows of _Lib and _dKi_buf brought up to date
         self._scale = None
         self._sites = None               # (X it was made from, first row of each site, site points)
+        self._mw = None                  # (alpha they were made from, the mean's weights per site, ...)
         self._preq = [0.0, 0]            # sum of squared standardised one-step-ahead errors, count
 
     # -- kernel ----------------------------------------------------------------------
@@ -513,10 +515,21 @@ class GPIS:
             self._sites = (X, first, X[first])
         return self._sites[1], self._sites[2]
 
-    def _site_weights(self, W):
-        """(sites, k) the rows' weights ``W`` (n, k) summed over each site's rows, and the sites' points."""
-        first, P = self._site_rows()
-        return (np.add.reduceat(W, first, axis=0) if len(first) < len(W) else W), P
+    def _site_weights(self):
+        """The weights of :meth:`mean_grad` per site: (sites, 16) the rows' columns
+        [w0, wb, x w0, x wb^T] summed over each site's rows (each is linear in rows that
+        share their point; :meth:`mean` uses the first 4), the sites' points over l, and
+        their squared norms. Kept until the weights change."""
+        if self._mw is None or self._mw[0] is not self.alpha:
+            X = self.X
+            w0, wb = self._mean_weights()
+            W = np.concatenate([w0[:, None], wb, X * w0[:, None], (X[:, :, None] * wb[:, None, :]).reshape(-1, 9)], 1)
+            first, P = self._site_rows()
+            if len(first) < len(W):
+                W = np.add.reduceat(W, first, axis=0)
+            Xd = P / self.l
+            self._mw = (self.alpha, W, Xd, np.sum(Xd * Xd, 1))
+        return self._mw[1:]
 
     def _se(self, q, Xd, xx, dtype):
         """exp(-|q - x_j|^2 / 2 l^2) for a chunk of queries against every observation point
@@ -543,11 +556,8 @@ class GPIS:
             return m
         # sum_j K_ij c_ij a_j with c = 1 (values) or (q_ib - x_jb) / l^2 (gradient component b):
         # one kernel matrix, then matrix-vector products only
-        w0, wb = self._mean_weights()
-        W, P = self._site_weights(np.concatenate([w0[:, None], wb], axis=1))   # (sites, 4)
-        W = W.astype(dtype)
-        Xd = (P / self.l).astype(dtype)
-        xx = np.sum(Xd * Xd, 1)
+        W, Xd, xx = self._site_weights()
+        W, Xd, xx = W[:, :4].astype(dtype), Xd.astype(dtype), xx.astype(dtype)
         out = np.empty(len(Q))
         for i in range(0, len(Q), _CHUNK):
             q = Q[i:i + _CHUNK]
@@ -567,12 +577,8 @@ class GPIS:
         m, gm = self.prior(Q)
         if self.n == 0 or len(Q) == 0:
             return m, gm
-        X, l2 = self.X, self.l * self.l
-        w0, wb = self._mean_weights()
-        W = np.concatenate([w0[:, None], wb, X * w0[:, None], (X[:, :, None] * wb[:, None, :]).reshape(-1, 9)], 1)
-        W, P = self._site_weights(W)      # each column is linear in rows that share their point
-        Xd = P / self.l
-        xx = np.sum(Xd * Xd, 1)
+        l2 = self.l * self.l
+        W, Xd, xx = self._site_weights()
         mu = np.empty(len(Q))
         grad = np.empty((len(Q), 3))
         for i in range(0, len(Q), _CHUNK):

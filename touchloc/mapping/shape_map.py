@@ -321,10 +321,10 @@ class ShapeMap:
         worse when applied beyond outright contradictions, and of the bread 13-27 % worse
         at 20-100 touches even when limited to them.)
         """
-        for _ in range(rounds):
+        for r in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
                 break
-            self._wake_pool()
+            self._wake_pool(sleep=r == 0)
             awake = np.flatnonzero(self._free_awake)
             mu, sd = self._gp.tracked_mean(), self._gp.tracked_std()
             viol = (self._free_c[awake] - mu) / sd
@@ -356,7 +356,7 @@ class ShapeMap:
     _WAKE = 1.5
     _SLEEP = 2.0
 
-    def _wake_pool(self):
+    def _wake_pool(self, sleep: bool = True):
         """Give the GPIS columns to the pool points that may become bounds, and take them
         from those that cannot.
 
@@ -367,18 +367,20 @@ class ShapeMap:
         row per point and update, instead of a column of L^-1 K(X, Q) extended by every
         row the map adds and recomputed whenever a relocation moves the rows or the point.
         Which points become bounds is unchanged (the hysteresis between _WAKE and _SLEEP,
-        both above 1, keeps points from trading places at every update).
+        both above 1, keeps points from trading places at every update; with ``sleep``
+        False, points only wake). The direct mean runs in single precision: its rounding
+        (1e-7 relative) is far inside the half deviation between _WAKE and 1.
         """
         gp, s = self._gp, self.signal_std
         awake = np.flatnonzero(self._free_awake)
-        if len(awake):
+        if sleep and len(awake):
             far = gp.tracked_mean() - self._free_c[awake] >= self._SLEEP * s
             if np.any(far):
                 gp.untrack(~far)
                 self._free_awake[awake[far]] = False
         asleep = np.flatnonzero(~self._free_awake)
         if len(asleep):
-            wake = asleep[gp.mean(self._free[asleep]) - self._free_c[asleep] < self._WAKE * s]
+            wake = asleep[gp.mean(self._free[asleep], dtype=np.float32) - self._free_c[asleep] < self._WAKE * s]
             if len(wake):
                 # to the end of the pool: the tracked points stay in the pool's order
                 rest = np.ones(len(self._free), bool)
