@@ -140,7 +140,6 @@ class ShapeMap:
         self._has_normals = True
         self._free = np.zeros((0, 3))    # swept sample points not yet used
         self._free_c = np.zeros(0)       # their observation values
-        self._free_awake = np.zeros(0, dtype=bool)   # those the GPIS tracks (see _wake_pool)
         # which update() call (batch) each contact, GPIS row and pool point came from, so
         # that relocate() can move a batch's data when its pose is revised
         self._pts_owner = np.zeros(0, dtype=np.int64)
@@ -299,13 +298,10 @@ class ShapeMap:
             new.append(X[inside])
             val.append(np.full(int(inside.sum()), r + 0.002))
         if new:
-            X, c = np.concatenate(new), np.concatenate(val)
-            awake = self._gp.mean(X) - c < self._WAKE * self.signal_std
-            self._free = np.concatenate([self._free, X])
-            self._free_c = np.concatenate([self._free_c, c])
-            self._free_owner = np.concatenate([self._free_owner, np.full(len(X), batch, dtype=np.int64)])
-            self._free_awake = np.concatenate([self._free_awake, awake])
-            self._gp.track(X[awake])
+            self._free = np.concatenate([self._free] + new)
+            self._free_c = np.concatenate([self._free_c] + val)
+            self._free_owner = np.concatenate([self._free_owner, np.full(sum(map(len, new)), batch, dtype=np.int64)])
+            self._gp.track(np.concatenate(new))
 
     _MAX_POOL = 4000
     _FREE_Z = -1.0   # a swept point becomes a bound once the map gives it P(f < c) > Phi(-1) = 16 %
@@ -321,21 +317,19 @@ class ShapeMap:
         worse when applied beyond outright contradictions, and of the bread 13-27 % worse
         at 20-100 touches even when limited to them.)
         """
-        for r in range(rounds):
+        for _ in range(rounds):
             if len(self._free) == 0 or self._gp.n == 0:
                 break
-            self._wake_pool(sleep=r == 0)
-            awake = np.flatnonzero(self._free_awake)
             mu, sd = self._gp.tracked_mean(), self._gp.tracked_std()
-            viol = (self._free_c[awake] - mu) / sd
-            sel = np.flatnonzero(viol > self._FREE_Z)
-            if len(sel) == 0:
+            viol = (self._free_c - mu) / sd
+            idx = np.flatnonzero(viol > self._FREE_Z)
+            if len(idx) == 0:
                 break
-            sel = sel[np.argsort(-viol[sel])][:per_round]
+            idx = idx[np.argsort(-viol[idx])][:per_round]
             # keep activated points a quarter length scale apart so the kernel matrix stays well conditioned
-            sel = sel[_spread(self._free[awake[sel]], 0.25 * self.lengthscale)]
-            idx = awake[sel]
-            val, var = bound_site(mu[sel], sd[sel], self._free_c[idx], floor=(2.0 * self.sigma_pos) ** 2)
+            chosen = _spread(self._free[idx], 0.25 * self.lengthscale)
+            idx = idx[chosen]
+            val, var = bound_site(mu[idx], sd[idx], self._free_c[idx], floor=(2.0 * self.sigma_pos) ** 2)
             self._gp.add(self._free[idx], np.full(len(idx), -1), val, var, scored=False)
             self._row_owner = np.concatenate([self._row_owner, self._free_owner[idx]])
             keep = np.ones(len(self._free), bool)
@@ -344,57 +338,14 @@ class ShapeMap:
         if len(self._free) > self._MAX_POOL and self._gp.n:
             # bound the pool: forget the points the map puts farthest outside, the least
             # likely ever to contradict it
-            mu = np.empty(len(self._free))
-            mu[self._free_awake] = self._gp.tracked_mean()
-            mu[~self._free_awake] = self._gp.mean(self._free[~self._free_awake])
+            mu = self._gp.tracked_mean() - self._free_c
             keep = np.zeros(len(self._free), bool)
-            keep[np.argsort(mu - self._free_c)[:self._MAX_POOL // 2]] = True
+            keep[np.argsort(mu)[:self._MAX_POOL // 2]] = True
             self._drop_free(keep)
 
-    # a pool point has a column in the GPIS (L^-1 k(X, q), for its deviation) while the mean
-    # puts it less than _WAKE signal deviations beyond its bound, and loses it beyond _SLEEP
-    _WAKE = 1.5
-    _SLEEP = 2.0
-
-    def _wake_pool(self, sleep: bool = True):
-        """Give the GPIS columns to the pool points that may become bounds, and take them
-        from those that cannot.
-
-        A point becomes a bound when (c - mean) / sd > _FREE_Z = -1, and the deviation never
-        exceeds ``signal_std``: a point whose mean is ``signal_std`` or more beyond its
-        bound cannot become one, and needs no deviation. Such points (about three quarters
-        of a pool) are kept apart and their mean computed directly, which costs a kernel
-        row per point and update, instead of a column of L^-1 K(X, Q) extended by every
-        row the map adds and recomputed whenever a relocation moves the rows or the point.
-        Which points become bounds is unchanged (the hysteresis between _WAKE and _SLEEP,
-        both above 1, keeps points from trading places at every update; with ``sleep``
-        False, points only wake). The direct mean runs in single precision: its rounding
-        (1e-7 relative) is far inside the half deviation between _WAKE and 1.
-        """
-        gp, s = self._gp, self.signal_std
-        awake = np.flatnonzero(self._free_awake)
-        if sleep and len(awake):
-            far = gp.tracked_mean() - self._free_c[awake] >= self._SLEEP * s
-            if np.any(far):
-                gp.untrack(~far)
-                self._free_awake[awake[far]] = False
-        asleep = np.flatnonzero(~self._free_awake)
-        if len(asleep):
-            wake = asleep[gp.mean(self._free[asleep], dtype=np.float32) - self._free_c[asleep] < self._WAKE * s]
-            if len(wake):
-                # to the end of the pool: the tracked points stay in the pool's order
-                rest = np.ones(len(self._free), bool)
-                rest[wake] = False
-                order = np.concatenate([np.flatnonzero(rest), wake])
-                self._free, self._free_c = self._free[order], self._free_c[order]
-                self._free_owner, self._free_awake = self._free_owner[order], self._free_awake[order]
-                self._free_awake[-len(wake):] = True
-                gp.track(self._free[-len(wake):])
-
     def _drop_free(self, keep):
-        self._gp.untrack(keep[self._free_awake])
         self._free, self._free_c, self._free_owner = self._free[keep], self._free_c[keep], self._free_owner[keep]
-        self._free_awake = self._free_awake[keep]
+        self._gp.untrack(keep)
 
     @blas_threads
     def relocate(self, transforms, *, tol: float = 0.0) -> "ShapeMap":
@@ -467,7 +418,7 @@ class ShapeMap:
                 y[g], y[g + 1], y[g + 2] = G[:, 0], G[:, 1], G[:, 2]
             rows = np.flatnonzero(self._row_owner >= first)
             start = int(rows[0]) if len(rows) else gp.n
-            gp.relocate(X, y, self._free[self._free_awake], start=start)
+            gp.relocate(X, y, self._free, start=start)
             gp.set_prior(self._make_prior())
         else:
             self._grid = OccupancyGrid(self.lo, self.hi, self.resolution)
