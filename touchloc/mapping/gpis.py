@@ -47,7 +47,7 @@ pass that computes it once per pair of distinct points (:func:`_kernel_matrix`),
 mean and its gradient at query points sum the rows' weights per point before the
 exponentials (:meth:`GPIS._site_weights`, kept until the data change). Against
 row-by-row numpy (masks and fancy indexing per block), this made the kernel matrix about
-20x faster at 1000 x 600 rows and a tactile SLAM update 1.1-1.5x at 101-400 contacts
+20x faster at 1000 x 600 rows (a one-off timing) and a tactile SLAM update 1.1-1.5x at 101-400 contacts
 (docs/benchmarks.md, the A/B section at the top).
 """
 
