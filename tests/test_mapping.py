@@ -188,8 +188,12 @@ def test_relocate_rejects_bad_input(sphere):
     _, m = _batches_and_map(sphere, k=2)
     with pytest.raises(ValidationError):
         m.relocate([np.eye(4)])                      # one per update
-    with pytest.raises(ValidationError):
-        m.relocate([np.eye(4), np.diag([1.0, 1.0, -1.0, 1.0])])   # a reflection
+    with pytest.raises(ValidationError, match=r"transforms\[1\].*reflection"):
+        m.relocate([None, np.diag([1.0, 1.0, -1.0, 1.0])])   # a reflection, named by its update
+    with pytest.raises(ValidationError, match=r"transforms\[1\]"):
+        m.relocate([np.eye(4), np.eye(3)])
+    with pytest.raises(ValidationError, match=r"transforms\[0\]"):
+        m.relocate([[[1, 2], [3]], None])                      # ragged
     with pytest.raises(ValidationError):
         m.relocate([np.eye(4), np.full((4, 4), np.nan)])
     with pytest.raises(ValidationError):

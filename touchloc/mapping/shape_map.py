@@ -371,7 +371,7 @@ class ShapeMap:
         ShapeMap
             self.
         """
-        from .._validate import as_pose
+        from .._validate import as_float_array, as_pose, as_poses
 
         if isinstance(transforms, np.ndarray) and transforms.ndim == 3:
             transforms = list(transforms)
@@ -382,13 +382,22 @@ class ShapeMap:
             raise ValidationError(f"tol must be a finite number >= 0 (m), got {tol!r}")
         corners = np.array([[x, y, z] for x in (self.lo[0], self.hi[0]) for y in (self.lo[1], self.hi[1])
                             for z in (self.lo[2], self.hi[2])])
+        given = [b for b, T in enumerate(transforms) if T is not None]
         moves = {}
-        for b, T in enumerate(transforms):
-            if T is None:
-                continue
-            T = as_pose(T, f"transforms[{b}]")
-            if np.max(np.linalg.norm(corners @ T[:3, :3].T + T[:3, 3] - corners, axis=1)) > tol:
-                moves[b] = T
+        if given:
+            # each checked for shape and finiteness, then all for rigidity in one batch: a
+            # smoothing pass hands in dozens of transforms
+            Ts = np.stack([as_float_array(transforms[b], f"transforms[{b}]", shape=(4, 4),
+                                          expected="a (4, 4) homogeneous matrix") for b in given])
+            try:
+                as_poses(Ts, "transforms")
+            except ValidationError:
+                for b, T in zip(given, Ts):       # name the offender
+                    as_pose(T, f"transforms[{b}]")
+                raise
+            shift = np.max(np.linalg.norm(np.einsum("bij,cj->bci", Ts[:, :3, :3], corners) + Ts[:, None, :3, 3]
+                                          - corners, axis=2), axis=1)
+            moves = {b: T for b, T, d in zip(given, Ts, shift) if d > tol}
         if not moves:
             return self
         first = min(moves)

@@ -970,16 +970,21 @@ class TactileSLAM:
         if info["accepted"]:
             # the map moves each step's touches from its old pose to its new one (object frame);
             # steps whose contacts move by less than a tenth of the sensor's noise stay
+            # (a step without contacts, whose batch holds only swept free space, is measured
+            # at the map box's corners, which bound its points; a held step, whose revision
+            # is the identity up to rounding, must not force a refit from its rows on)
             moves = [None] * len(self.map.batches)
+            box = np.array([[x, y, z] for x in (self.map.lo[0], self.map.hi[0])
+                            for y in (self.map.lo[1], self.map.hi[1]) for z in (self.map.lo[2], self.map.hi[2])])
             for st, a, b in zip(self._steps, new, old):
                 A = np.linalg.inv(a) @ b
                 if st["contacts"] is not None:
                     x = (st["contacts"].points - b[:3, 3]) @ b[:3, :3]
                     shift = float(np.max(np.linalg.norm(x @ A[:3, :3].T + A[:3, 3] - x, axis=1)))
                     rec["max_change"] = max(rec["max_change"], shift)
-                    if shift < 0.1 * self.map.sigma_pos:
-                        continue
-                if st["batch"] is not None:
+                elif st["batch"] is not None:
+                    shift = float(np.max(np.linalg.norm(box @ A[:3, :3].T + A[:3, 3] - box, axis=1)))
+                if st["batch"] is not None and shift >= 0.1 * self.map.sigma_pos:
                     moves[st["batch"]] = A
             self.map.relocate(moves)
             # the particles follow the correction of the current pose
