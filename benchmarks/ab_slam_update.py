@@ -8,8 +8,9 @@ process with single-threaded BLAS), for this checkout and for ``git archive REV`
 alternating order for ``--rounds`` rounds so that both see the same load on a shared
 machine. Where the two versions take the same touches (a change that keeps the results),
 the updates are paired and the ratio is the median over updates of REV / this checkout;
-otherwise only the medians per bin are comparable. Prints a Markdown table; nothing is
-written to docs/.
+otherwise only the medians per bin are comparable. The updates that ran a smoothing
+round (the tail of the distribution) are also paired apart. Prints a Markdown table;
+nothing is written to docs/.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ def main(argv=None) -> int:
             if got is None:
                 print(f"no commit {a.rev!r} in this repository", file=sys.stderr)
                 return 2
-            out.append(got[3])   # three fingers: (contacts after each update, CPU s, smoother runs)
+            out.append(got[3])   # three fingers: (contacts after each update, CPU s, smoother runs, smoothed)
     same = all(np.array_equal(c[0], b[0]) for c in cur for b in base)
     rows = []
     for lo, hi in BINS:
@@ -65,6 +66,22 @@ def main(argv=None) -> int:
                          " / ".join(f"{m:.0f}" for m in meds_c),
                          " / ".join(f"{m:.0f}" for m in p95_b), " / ".join(f"{m:.0f}" for m in p95_c),
                          " / ".join(f"{x:.2f}x" for x in ratios) if same else "(other touches)"])
+    # the updates that ran a smoothing round (the same schedule in both versions): the tail
+    if same:
+        for lo, hi in ((0, 200), (200, 600)):
+            meds_c, meds_b, ratios = [], [], []
+            for c, b in zip(cur, base):
+                cc, tc, sm = np.array(c[0]), np.array(c[1]), np.array(c[3], bool)
+                tb = np.array(b[1])
+                sel = sm & (cc > lo) & (cc <= hi)
+                if np.any(sel):
+                    meds_c.append(np.median(tc[sel]) * 1e3)
+                    meds_b.append(np.median(tb[sel]) * 1e3)
+                    ratios.append(np.median(tb[sel] / tc[sel]))
+            if meds_c:
+                rows.append([f"smoothing updates, {lo + 1}-{hi} ({int(np.sum(sel))})",
+                             " / ".join(f"{m:.0f}" for m in meds_b), " / ".join(f"{m:.0f}" for m in meds_c),
+                             "", "", " / ".join(f"{x:.2f}x" for x in ratios)])
     print(f"Three-finger pushed milk carton, {a.rounds} rounds, load average {os.getloadavg()[0]:.1f} on "
           f"{os.cpu_count()} cores at the end; the two versions took {'the same' if same else 'other'} touches.\n")
     print(table(["contacts in the map", f"{a.rev} median (ms), per round", "this checkout median (ms), per round",

@@ -251,7 +251,7 @@ def test_reply_outside_physical_range_is_protocol_error_with_stop(reply, call):
             return reply if out.upper().startswith(name) else out
 
     link = CorruptingLink(Fixed(), rate=0.0)
-    hand = SDH2(link, timeout=0.05, connect=False)
+    hand = SDH2(link, timeout=1.0, connect=False)
     with pytest.raises(ProtocolError):
         call(hand)
     assert link.stops >= 1
@@ -264,7 +264,7 @@ def test_sdh2_timeouts_are_validated(bad):
     from touchloc.hardware.emulator import SDH2Emulator
     from touchloc.hardware.emulator._corrupt import CorruptingLink
 
-    hand = SDH2(CorruptingLink(SDH2Emulator(), rate=0.0), timeout=0.05)
+    hand = SDH2(CorruptingLink(SDH2Emulator(), rate=0.0), timeout=1.0)
     with pytest.raises(ValidationError):
         hand.command("pos", timeout=bad)
     with pytest.raises(ValidationError):
@@ -280,7 +280,7 @@ def test_dsacon_wait_timeout_is_validated(bad):
     from touchloc.hardware.emulator import DSACON32mEmulator
     from touchloc.hardware.emulator._corrupt import CorruptingLink
 
-    dev = DSACON32m(CorruptingLink(DSACON32mEmulator(), rate=0.0), timeout=0.05)
+    dev = DSACON32m(CorruptingLink(DSACON32mEmulator(), rate=0.0), timeout=1.0)
     with pytest.raises(ValidationError):
         dev.read_frame(timeout=bad)
     with pytest.raises(ValidationError):
