@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
-from scipy.linalg import lapack, solve_triangular
+from scipy.linalg import blas, lapack, solve_triangular
 from scipy.special import log_ndtr
 
 from .._cache import numba_cache_enabled
@@ -244,10 +244,17 @@ class GPIS:
             R[max(n0 - a, 0):] = self._Tb[max(a - n0, 0):b - n0, :b]
         return R
 
-    def _sync_V(self, upto: int | None = None) -> None:
+    def _sync_V(self, upto: int | None = None, *, by_inverse: bool = False) -> None:
         """Extend the tracked points' columns V = L^-1 K(X, Q) by the rows added since they
         were last needed (up to row ``upto``, default all): one pass over V for all of them
-        instead of one per :meth:`add`."""
+        instead of one per :meth:`add`.
+
+        ``by_inverse`` (with L^-1 brought up to date over those rows) multiplies by the
+        inverse's diagonal block instead of solving with the factor's: the same flops, but
+        BLAS's triangular product ran 2-2.7x faster than its triangular solve at 800-1000
+        rows and 700-1500 points (a one-off timing, one thread). A relocation re-adds most
+        rows and computes that block anyway.
+        """
         a, n, m = self._nv, self.n if upto is None else upto, len(self._Qp)
         if a >= n:
             return
@@ -256,7 +263,10 @@ class GPIS:
             rhs = self.kernel(self.X[a:n], self.kind[a:n], self._Qp, np.full(m, -1))
             if a:
                 rhs -= R[:, :a] @ self._Vb[:a, :m]
-            Vk = solve_triangular(R[:, a:], rhs, lower=True, check_finite=False)
+            if by_inverse and self._nl >= n:
+                Vk = blas.dtrmm(1.0, np.asfortranarray(self._Lib[a:n, a:n]), rhs, lower=1)
+            else:
+                Vk = solve_triangular(R[:, a:], rhs, lower=True, check_finite=False)
             self._reserve(n, m)
             self._Vb[a:n, :m] = Vk
             self._vv = self._vv + np.einsum("ij,ij->j", Vk, Vk)
@@ -364,9 +374,9 @@ class GPIS:
         self._alpha = self._z = self._scale = None
         if start < len(y):
             self.add(X[start:], kind[start:], y[start:], noise[start:], scored=scored[start:])
-            # bring V and L^-1 up to date now: the relocation's cost stays in its own call
-            self._sync_V()
+            # bring L^-1 and V up to date now: the relocation's cost stays in its own call
             self._sync_inverse()
+            self._sync_V(by_inverse=True)
 
     def set_prior(self, prior) -> None:
         self.prior = prior
