@@ -34,7 +34,8 @@ from touchloc.errors import TouchlocError  # noqa: E402
 MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping",
            "touchloc.recognition", "touchloc.experiments", "touchloc.hardware"]
 N_EXAMPLES = 30        # hostile calls per public callable
-TIME_LIMIT = 3.0       # seconds per call: beyond it the call counts as a hang
+TIME_LIMIT = 3.0       # seconds per call: beyond it (and beyond HANG_RETRY times it, once more) a hang
+HANG_RETRY = 10
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -233,8 +234,14 @@ def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT, extra=None):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            with np.errstate(all="ignore"), time_limit(time_limit_s):
-                out = fn(*args, **kwargs)
+            try:
+                with np.errstate(all="ignore"), time_limit(time_limit_s):
+                    out = fn(*args, **kwargs)
+            except CallTimeout:
+                # a slow call on a loaded machine is not a hang: once more, with ten times
+                # the time, before it counts as one
+                with np.errstate(all="ignore"), time_limit(HANG_RETRY * time_limit_s):
+                    out = fn(*args, **kwargs)
     except CallTimeout as exc:
         return "hang", str(exc)
     except TouchlocError:
@@ -457,3 +464,14 @@ def test_suite_covers_every_public_callable():
     assert len(CALLABLES) >= 80
     assert N_EXAMPLES >= 30 and len(BAD) >= 25
     assert not UNCLEAN and not TOO_SLOW
+
+
+def test_a_slow_call_is_retried_and_a_hang_is_still_one():
+    """The hang detector gives a slow call (a loaded machine) a second, longer chance, and
+    still reports a call that does not answer within it."""
+    import time
+
+    slow_then_fast = iter([0.3, 0.0])
+    assert run_one(lambda: time.sleep(next(slow_then_fast)), [], None, None, time_limit_s=0.1)[0] == "ok"
+    kind, detail = run_one(lambda: time.sleep(5.0), [], None, None, time_limit_s=0.1)
+    assert kind == "hang" and "1.0 s" in detail, (kind, detail)
