@@ -347,6 +347,12 @@ class ShapeMap:
         self._free, self._free_c, self._free_owner = self._free[keep], self._free_c[keep], self._free_owner[keep]
         self._gp.untrack(keep)
 
+    def _corners(self) -> np.ndarray:
+        """(8, 3) the corners of the map's box: they bound how far a rigid move shifts any
+        of its points."""
+        return np.array([[x, y, z] for x in (self.lo[0], self.hi[0]) for y in (self.lo[1], self.hi[1])
+                         for z in (self.lo[2], self.hi[2])])
+
     @blas_threads
     def relocate(self, transforms, *, tol: float = 0.0) -> "ShapeMap":
         """Move the data of each past update by a rigid transform, and refit.
@@ -380,8 +386,7 @@ class ShapeMap:
                                   f"got {type(transforms).__name__} of length {len(transforms) if hasattr(transforms, '__len__') else '?'}")
         if not isinstance(tol, (int, float, np.floating, np.integer)) or isinstance(tol, bool) or not (tol >= 0 and np.isfinite(tol)):
             raise ValidationError(f"tol must be a finite number >= 0 (m), got {tol!r}")
-        corners = np.array([[x, y, z] for x in (self.lo[0], self.hi[0]) for y in (self.lo[1], self.hi[1])
-                            for z in (self.lo[2], self.hi[2])])
+        corners = self._corners()
         given = [b for b, T in enumerate(transforms) if T is not None]
         moves = {}
         if given:

@@ -974,8 +974,7 @@ class TactileSLAM:
             # at the map box's corners, which bound its points; a held step, whose revision
             # is the identity up to rounding, must not force a refit from its rows on)
             moves = [None] * len(self.map.batches)
-            box = np.array([[x, y, z] for x in (self.map.lo[0], self.map.hi[0])
-                            for y in (self.map.lo[1], self.map.hi[1]) for z in (self.map.lo[2], self.map.hi[2])])
+            box = self.map._corners()
             for st, a, b in zip(self._steps, new, old):
                 A = np.linalg.inv(a) @ b
                 if st["contacts"] is not None:
