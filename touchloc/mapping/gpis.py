@@ -670,9 +670,10 @@ def _grown(buf, rows, cols, used_rows, used_cols):
 def _tri_inv(T) -> np.ndarray:
     """The inverse of a lower-triangular matrix with a positive diagonal (a Cholesky factor).
 
-    LAPACK's ``trtri`` inverts in place in n^3 / 3 flops; a triangular solve against the
-    identity does half as much again and, for want of blocking, ran 2.5-4x slower at
-    400-800 rows.
+    LAPACK's ``trtri`` inverts in n^3 / 3 flops; a triangular solve against the identity
+    does n^3 (it cannot know that its right-hand side is triangular) and ran 2.5-4x slower
+    at 400-800 rows (a one-off timing). The upper triangle of ``T`` must be zero: ``trtri``
+    leaves it as it is.
     """
     Ti, info = lapack.dtrtri(np.asarray(T, float), lower=1)
     if info != 0:
