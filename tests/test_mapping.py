@@ -648,6 +648,33 @@ def test_gpis_factor_in_two_parts_and_lazily_dropped_pool_points_agree_with_a_re
     check()
 
 
+def test_gpis_cholesky_reads_the_lower_triangle_and_jitters_only_when_it_must():
+    """The factor comes from LAPACK on the matrix's transpose: it must equal numpy's
+    factor of the symmetric matrix (reading the lower triangle alone, as numpy does), be
+    lower triangular and C-ordered; a singular kernel matrix (a point observed twice)
+    gets a small jitter, and an indefinite one a clear error."""
+    from touchloc.mapping.gpis import GPIS, _chol
+
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(60, 60))
+    A = B @ B.T + 60 * np.eye(60)
+    L = _chol(A)
+    assert L.flags["C_CONTIGUOUS"] and np.array_equal(L, np.tril(L))
+    assert np.allclose(L, np.linalg.cholesky(A), rtol=0, atol=1e-12)
+    garbage = np.tril(A) + np.triu(rng.normal(size=(60, 60)), 1)   # the upper triangle is not read
+    assert np.array_equal(_chol(garbage), L)
+    assert np.allclose(_chol(np.asfortranarray(A)), L, rtol=0, atol=1e-12)
+    gp = GPIS(0.02, 0.01, lambda X: (np.zeros(len(X)), np.zeros((len(X), 3))))
+    X = np.array([[0.01, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.02, 0.0]])
+    K = gp.kernel(X, np.full(3, -1), X, np.full(3, -1))    # rank 2: the first point twice
+    Lk = _chol(K)
+    jitter = np.diag(Lk @ Lk.T - K)
+    assert np.all(jitter > 0) and np.max(jitter) < 1e-6 * np.mean(np.diag(K))
+    with pytest.raises(TouchlocError, match="not positive definite"):
+        _chol(-np.eye(3))
+    assert _chol(np.zeros((0, 0))).shape == (0, 0)
+
+
 def test_gpis_kernel_blocks_are_the_derivatives_of_the_value_kernel_and_ignore_row_order():
     """The compiled kernel against finite differences of its own value block (the gradient
     blocks are derivatives of k(x, y) in x and y), and against itself with rows and columns

@@ -264,7 +264,9 @@ class GPIS:
             if a:
                 rhs -= R[:, :a] @ self._Vb[:a, :m]
             if by_inverse and self._nl >= n:
-                Vk = blas.dtrmm(1.0, np.asfortranarray(self._Lib[a:n, a:n]), rhs, lower=1)
+                # V^T = rhs^T L^-T: the right-side product on the transposes, which are in
+                # Fortran order already (neither rhs nor the result is copied between orders)
+                Vk = blas.dtrmm(1.0, self._Lib[a:n, a:n].T, rhs.T, side=1, lower=0, overwrite_b=1).T
             else:
                 Vk = solve_triangular(R[:, a:], rhs, lower=True, check_finite=False)
             self._reserve(n, m)
@@ -313,7 +315,8 @@ class GPIS:
         noise = np.asarray(noise, float).reshape(-1)
         if len(y) == 0:
             return
-        C = self.kernel(X, kind, X, kind) + np.diag(noise)
+        C = self.kernel(X, kind, X, kind)
+        C[np.diag_indices(len(y))] += noise       # (in place: a dense diagonal matrix cost two n^2 passes)
         if self.n == 0:
             L2 = _chol(C)
             W = np.zeros((0, len(y)))
@@ -333,7 +336,9 @@ class GPIS:
         """Rebuild the Cholesky factor from scratch (the reference for the incremental one)."""
         self._compact()
         if self.n:
-            self._L0 = _chol(self.kernel(self.X, self.kind, self.X, self.kind) + np.diag(self.noise))
+            C = self.kernel(self.X, self.kind, self.X, self.kind)
+            C[np.diag_indices(self.n)] += self.noise
+            self._L0 = _chol(C)
             self._Lib = _tri_inv(self._L0)
             self._dKi_buf = np.einsum("ij,ij->j", self._Lib, self._Lib)
         self._Vb = self._columns(self._Qp)
@@ -350,11 +355,11 @@ class GPIS:
         moving the last rows costs O(n^2 k) rather than a refactorisation. Tracked points
         that moved get new columns; the others keep theirs over the leading rows.
         """
-        self._compact()
+        start = int(np.clip(start, 0, self.n))
+        self._compact(start)         # (the columns' rows from start on are recomputed below)
         X = np.asarray(X, float).reshape(self.n, 3)
         y = np.asarray(y, float).reshape(self.n)
         Q = np.asarray(Q, float).reshape(len(self._Qp), 3)
-        start = int(np.clip(start, 0, self.n))
         kind, noise, scored = self.kind, self.noise, self.scored
         moved_q = np.any(Q != self._Qp, axis=1)
         self._sync_V(start)          # the kept rows of V and of L^-1 must be up to date
@@ -434,11 +439,13 @@ class GPIS:
     def _reserve(self, rows, cols) -> None:
         self._Vb = _grown(self._Vb, rows, cols, self.n, len(self._Qp))
 
-    def _compact(self) -> None:
-        """Drop the columns of points no longer tracked."""
+    def _compact(self, rows: int | None = None) -> None:
+        """Drop the columns of points no longer tracked, moving only their leading ``rows``
+        (default all; a relocation recomputes the rest)."""
         if len(self._live) < len(self._Qp):
             idx = self._live
-            self._Vb[:self.n, :len(idx)] = self._Vb[:self.n, idx]
+            r = min(self._nv, self.n if rows is None else rows)
+            self._Vb[:r, :len(idx)] = self._Vb[:r, idx]
             self._Qp = self._Qp[idx]
             self._vv = self._vv[idx]
             self._live = np.arange(len(idx))
@@ -682,12 +689,25 @@ def _tri_inv(T) -> np.ndarray:
 
 
 def _chol(A):
-    """Lower Cholesky factor, with a little jitter if rounding made A indefinite."""
+    """Lower Cholesky factor (C-ordered), with a little jitter if rounding made A indefinite.
+
+    LAPACK's ``potrf`` through scipy, given A's transpose: a C-ordered matrix's transpose is
+    in Fortran order already, and its upper triangle is A's lower one, so the factor is read
+    from A's lower triangle (as numpy's) and comes back as the transpose of the upper
+    factor. The jitter's identity is built only when it is needed. On a mapped mug's kernel
+    matrix of 1248 rows (one thread, a one-off timing): 19 ms, against 38 ms for
+    ``np.linalg.cholesky(A + 0 * I)`` as before and 22 ms for numpy's routine alone.
+    """
+    A = np.asarray(A, float)
+    n = len(A)
+    if n == 0:
+        return np.zeros((0, 0))
     jitter = 0.0
-    scale = float(np.mean(np.diag(A))) if len(A) else 1.0
+    scale = float(np.mean(np.diag(A)))
     for _ in range(6):
-        try:
-            return np.linalg.cholesky(A + jitter * np.eye(len(A)))
-        except np.linalg.LinAlgError:
-            jitter = max(jitter * 10, 1e-10 * scale)
+        M = A if jitter == 0.0 else A + jitter * np.eye(n)
+        U, info = lapack.dpotrf(M.T, lower=0, clean=1)
+        if info == 0:
+            return U.T
+        jitter = max(jitter * 10, 1e-10 * scale)
     raise TouchlocError("the shape map's kernel matrix is not positive definite (duplicate observations?)")

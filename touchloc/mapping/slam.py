@@ -550,7 +550,7 @@ class TactileSLAM:
         use = np.zeros(pos.shape[1], bool)
         if c is not None and len(c):
             gpos = self._contact_terms(self._from_twists(T0, grid[:, None] * u[None]), c, own_sd=True,
-                                       floor=self._TURN_MAP_SD)[0]
+                                       floor=self._TURN_MAP_SD, normals=False)[0]
             use = (gpos.max(axis=0) - gpos.min(axis=0)) >= self._TURN_MIN_RANGE
         ll = pos[:, ~use].sum(axis=1) + nor.sum(axis=1) + self._ll_free(Pb, results)
         self._turn_shown = bool(np.any(use))
@@ -1120,13 +1120,15 @@ class TactileSLAM:
         pos, nor = self._contact_terms(P, c)
         return pos.sum(axis=1) + nor.sum(axis=1)
 
-    def _contact_terms(self, P, c, *, own_sd: bool = False, floor: float = 0.0):
+    def _contact_terms(self, P, c, *, own_sd: bool = False, floor: float = 0.0, normals: bool = True):
         """``(pos (N, K), nor (N, K))``: each contact's position and normal terms of
         :meth:`_log_likelihood` at each pose of ``P``, each less its prior's. The map's
         standard deviation is taken at the mean pose's points, or with ``own_sd`` at each
-        pose's own."""
+        pose's own; ``normals=False`` leaves the normal terms at zero (and skips the map's
+        gradient)."""
         smap = self.map
         gpis = smap.method == "gpis"
+        normals = normals and gpis and c is not None and c.normals is not None
         prior_var = smap.signal_std**2
         N = len(P)
         K = 0 if c is None else len(c)
@@ -1135,10 +1137,10 @@ class TactileSLAM:
             return pos, nor
         Rt = np.transpose(P[:, :3, :3], (0, 2, 1))
         x = np.einsum("nij,nkj->nki", Rt, c.points[None, :, :] - P[:, None, :3, 3]).reshape(-1, 3)
-        if gpis:
+        if normals:
             mu, g = smap._gp.mean_grad(x)
         else:
-            mu = smap.signed_distance(x)
+            mu = smap._gp.mean(x) if gpis else smap.signed_distance(x)
         if own_sd:
             sd = smap.surface_std(np.clip(x, smap.lo, smap.hi))
         else:
@@ -1150,7 +1152,7 @@ class TactileSLAM:
         if gpis:
             pm, pg = smap._gp.prior(x)
             pos += (0.5 * pm**2 / (prior_var + smap.sigma_pos**2 + floor**2)).reshape(N, K)
-        if c.normals is not None and gpis:
+        if normals:
             g /= np.maximum(np.linalg.norm(g, axis=1), 1e-9)[:, None]
             n_loc = np.einsum("nij,nkj->nki", Rt, np.broadcast_to(c.normals, (N,) + c.normals.shape)).reshape(-1, 3)
             # the map's normal is as uncertain as its gradient: for the squared-exponential
@@ -1185,7 +1187,9 @@ class TactileSLAM:
             mu = np.full(len(y), 1.0)
             pm = np.full(len(y), 1.0)
             if np.any(inb):
-                mu[inb] = smap.signed_distance(y[inb])
+                # the mean in single precision: 2.6x faster (the kernel's exponentials), off by
+                # at most a few micrometres against a scale of at least 2 sigma_pos (mm)
+                mu[inb] = smap._gp.mean(y[inb], dtype=np.float32)
                 pm[inb] = smap._gp.prior(y[inb])[0]
             # where the map is unsure, a swept point inside its mean is weak evidence against the pose
             T = self._mean_pose()
