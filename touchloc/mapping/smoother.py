@@ -112,17 +112,16 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
 
     turn_rows, turn_axes, turn_pts = [], [], []
     if fixed_turns is not None:
-        for k in range(S):
-            if not (fixed_turns[k] and free[k]):
-                continue
-            R = Dm[k, :3, :3]
-            w = Rotation.from_matrix(R).as_rotvec()
+        fixed = np.flatnonzero(np.asarray(fixed_turns, bool) & free)
+        # the motions' rotation vectors in one call (one call per step cost 0.2 ms each)
+        W = Rotation.from_matrix(Dm[fixed, :3, :3]).as_rotvec() if len(fixed) else np.zeros((0, 3))
+        for k, w in zip(fixed, W):
             th = float(np.linalg.norm(w))
             if th < 1e-9:
                 continue
             turn_rows.append(k)
             turn_axes.append(w / th)
-            turn_pts.append(np.linalg.lstsq(np.eye(3) - R, Dm[k, :3, 3], rcond=None)[0])
+            turn_pts.append(np.linalg.lstsq(np.eye(3) - Dm[k, :3, :3], Dm[k, :3, 3], rcond=None)[0])
     turn_rows = np.array(turn_rows, dtype=np.int64)
     turn_axes, turn_pts = np.array(turn_axes).reshape(-1, 3), np.array(turn_pts).reshape(-1, 3)
 
