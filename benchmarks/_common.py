@@ -155,3 +155,44 @@ class TreeWorker:
     def close(self):
         self.p.stdin.close()
         self.p.wait(timeout=60)
+
+
+def workers() -> int:
+    """Worker processes for a benchmark's trials: ``TOUCHLOC_BENCH_WORKERS``, else one per core."""
+    return int(os.environ.get("TOUCHLOC_BENCH_WORKERS", "0")) or os.cpu_count() or 1
+
+
+def spawn_map(fn, specs: list, env: dict | None = None) -> list:
+    """``[fn(s) for s in specs]`` on :func:`workers` spawned processes with single-threaded BLAS.
+
+    ``fn`` must be a module-level function of a benchmark module; ``env`` adds variables to
+    the workers' environment. The workers are spawned, not forked: BLAS reads its thread
+    count when numpy is first imported, which in this process has already happened, so
+    only a fresh interpreter started with the variables set runs single-threaded (forked
+    workers kept two threads each, four busy threads on two cores).
+    """
+    import multiprocessing
+    import sys
+    import types
+    from concurrent.futures import ProcessPoolExecutor
+
+    # benchmarks/run.py loads a benchmark file without registering it as a module: register
+    # it, so that fn pickles by name (the workers import the file as the module of that name)
+    name = fn.__module__
+    if getattr(sys.modules.get(name), fn.__name__, None) is not fn:
+        mod = types.ModuleType(name)
+        mod.__dict__.update(fn.__globals__)
+        sys.modules[name] = mod
+    extra = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    extra.update(env or {})
+    saved = {k: os.environ.get(k) for k in extra}
+    os.environ.update(extra)       # the spawned workers inherit this process's environment
+    try:
+        with ProcessPoolExecutor(workers(), mp_context=multiprocessing.get_context("spawn")) as ex:
+            return list(ex.map(fn, specs))
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

@@ -9,6 +9,8 @@ bundled meshes.
 
 from __future__ import annotations
 
+import os
+import pickle
 import time
 import warnings
 
@@ -16,25 +18,35 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from _common import baseline_tree, quiet_load, table
+from _common import RESULTS, baseline_tree, quiet_load, spawn_map, table, workers
 
 TITLE = "Shape mapping from touch"
 
 MESHES = ["bread", "can", "cereal", "lemon", "milk", "mug", "bunny"]
 
 
-def _procedural():
+#: the held-out procedural shapes, by name
+PROCEDURAL = {
+    "box 80x50x30": lambda: trimesh.creation.box((0.08, 0.05, 0.03)),
+    "cylinder r30 h90": lambda: trimesh.creation.cylinder(0.03, 0.09, sections=48),
+    "capsule r25 h60": lambda: trimesh.creation.capsule(0.06, 0.025),
+    "torus R40 r15": lambda: trimesh.creation.torus(0.04, 0.015),
+}
+
+
+def _object(name):
+    """A bundled mesh or a procedural shape, by name."""
     from touchloc.models import MeshObject
 
-    shapes = {
-        "box 80x50x30": trimesh.creation.box((0.08, 0.05, 0.03)),
-        "cylinder r30 h90": trimesh.creation.cylinder(0.03, 0.09, sections=48),
-        "capsule r25 h60": trimesh.creation.capsule(0.06, 0.025),
-        "torus R40 r15": trimesh.creation.torus(0.04, 0.015),
-    }
+    if name not in PROCEDURAL:
+        return quiet_load(name)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return {k: MeshObject(v, name=k) for k, v in shapes.items()}
+        return MeshObject(PROCEDURAL[name](), name=name)
+
+
+def _procedural():
+    return {k: _object(k) for k in PROCEDURAL}
 
 
 def _setup(obj, seed, noise=(0.001, 5.0), margin=0.02):
@@ -148,33 +160,73 @@ def _round_trip(obj, mapped, T0, seed, outlier=OUTLIER):
     return add_s(obj, b.map_pose() @ T0, T1), dt
 
 
+def job(spec):
+    """One trial on a worker process: its checkpoints and what the report reads from its run.
+
+    ``spec`` is ``(mesh name, seed, trial keywords, round trips)``; with round trips > 0 the
+    run's map is localised against that many times (:func:`_round_trip`, with and without
+    the outlier cap), on the worker, since the run itself does not cross processes.
+    """
+    name, seed, kw, n_rt = spec
+    obj = _object(name)
+    a = trial(obj, seed, **kw)
+    run = a.pop("run")
+    a["hits"] = sum(r.hit for r in run.results)
+    a["rt"] = []
+    if n_rt:
+        mapped = run.map.to_mesh()
+        for k in range(n_rt):
+            e, dt = _round_trip(obj, mapped, a["T"], 10 * seed + k)
+            e0, _ = _round_trip(obj, mapped, a["T"], 10 * seed + k, outlier=None)
+            a["rt"].append((name, e, dt, e0, len(mapped.mesh.faces)))
+    del a["truth"], a["T"]
+    return a
+
+
 def run(quick: bool = False) -> str:
     seeds = [0] if quick else [0, 1]
-    meshes = {m: quiet_load(m) for m in MESHES}
     out = []
+    t_all = time.perf_counter()
+    # every trial of the sections below, on worker processes; then the sections read them
+    nc = dict(free_space=False, calib_at=())
+    specs = {}
+    for name in MESHES:
+        for s in seeds:
+            specs[name, s, "a"] = (name, s, {}, 1 if quick else 2)
+            specs[name, s, "r"] = (name, s, dict(planner="random"), 0)
+            specs[name, s, "rn"] = (name, s, dict(planner="random", free_space=False), 0)
+            specs[name, s, "an"] = (name, s, nc, 0)
+            specs[name, s, "ao"] = (name, s, dict(nc, oracle_hits=True), 0)
+        specs[name, seeds[0], "pf"] = (name, seeds[0], dict(normals=False, calib_at=()), 0)
+        specs[name, seeds[0], "pn"] = (name, seeds[0], dict(nc, normals=False), 0)
+    held = [(name, s, noise) for name in PROCEDURAL for s in ([5] if quick else [5, 6])
+            for noise in ((0.001, 5.0), (0.002, 10.0))]
+    for name, s, noise in held:
+        specs[name, s, noise] = (name, s, dict(noise=noise, checkpoints=(30, 100)), 0)
+    for name in ("can", "cereal"):
+        specs[name, 0, "occ"] = (name, 0, dict(method="occupancy", checkpoints=(30, 100)), 0)
+    keys = list(specs)
+    # raw results are kept in out/bench/mapping[-quick].pkl; `run.py --resume` renders them again
+    cache = RESULTS / f"mapping{'-quick' if quick else ''}.pkl"
+    if os.environ.get("TOUCHLOC_BENCH_RESUME") == "1" and cache.exists():
+        got = pickle.loads(cache.read_bytes())
+    else:
+        got = dict(zip(keys, spawn_map(job, [specs[k] for k in keys], env={"NUMBA_NUM_THREADS": "1"})))
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        cache.write_bytes(pickle.dumps(got))
+    t_trials = time.perf_counter() - t_all
     # -- accuracy, active vs random, free space ---------------------------------------------
     rows, acc, paired_act, paired_free, calib, rt = [], [], [], [], [], []
-    upd = []
-    t_all = time.perf_counter()
-    for name, obj in meshes.items():
+    for name in MESHES:
         for s in seeds:
-            a = trial(obj, s)
-            r = trial(obj, s, planner="random")
-            rn = trial(obj, s, planner="random", free_space=False)
-            an = trial(obj, s, free_space=False, calib_at=())
-            ao = trial(obj, s, free_space=False, calib_at=(), oracle_hits=True)
+            a, r, rn, an, ao = (got[name, s, k] for k in ("a", "r", "rn", "an", "ao"))
             acc.append((name, s, a))
-            upd += list(zip(a["contacts"], a["update"]))
             paired_act.append((touches_to(a["chamfer"], 0.003), touches_to(r["chamfer"], 0.003)))
             paired_free.append([touches_to(r["chamfer"], rn["chamfer"][k]) for k in (30, 100)]
                                + [touches_to(a["chamfer"], an["chamfer"][k]) for k in (30, 100)]
                                + [touches_to(ao["chamfer"], an["chamfer"][k]) for k in (30, 100)])
             calib.append((a["calib"].get(30, np.nan), a["calib"].get(100, np.nan)))
-            mapped = a["run"].map.to_mesh()
-            for k in range(2 if not quick else 1):
-                e, dt = _round_trip(obj, mapped, a["T"], 10 * s + k)
-                e0, _ = _round_trip(obj, mapped, a["T"], 10 * s + k, outlier=None)
-                rt.append((name, e, dt, e0, len(mapped.mesh.faces)))
+            rt += a["rt"]
             rows.append([name, s, f"{a['chamfer'][30] * 1e3:.2f}", f"{a['fscore'][30]:.3f}",
                          f"{a['chamfer'][100] * 1e3:.2f}", f"{a['fscore'][100]:.3f}",
                          f"{r['chamfer'][30] * 1e3:.2f}", f"{r['chamfer'][100] * 1e3:.2f}",
@@ -185,6 +237,8 @@ def run(quick: bool = False) -> str:
     c100 = np.median([a["chamfer"][100] for _, _, a in acc]) * 1e3
     f30 = np.median([a["fscore"][30] for _, _, a in acc])
     f100 = np.median([a["fscore"][100] for _, _, a in acc])
+    out.append(f"Trials: {len(keys)} mapping runs on {workers()} worker processes, each on one thread (BLAS "
+               f"and compiled kernels), {t_trials:.0f} s wall.\n")
     out.append(f"### Bundled meshes ({len(MESHES)} meshes x {len(seeds)} seed(s), GPIS map)\n")
     out.append(table(["mesh", "seed", "Chamfer @30 (mm)", "F@5mm @30", "Chamfer @100 (mm)", "F@5mm @100",
                       "random: Chamfer @30", "random: @100", "random, no free space: @100",
@@ -215,7 +269,7 @@ def run(quick: bool = False) -> str:
                f"contacts-only 30-touch accuracy after a median of {np.median(orc[0]):.0f} touches "
                f"({100 * (1 - np.sum(orc[0]) / (30 * len(fr))):.0f} % fewer in total) and the 100-touch one after "
                f"{np.median(orc[1]):.0f} ({100 * (1 - np.sum(orc[1]) / (100 * len(fr))):.0f} % fewer).")
-    out.append(_positions_only(meshes, seeds[:1], cap))
+    out.append(_positions_only([(got[m, seeds[0], "pf"], got[m, seeds[0], "pn"]) for m in MESHES], cap))
     cal = np.array(calib)
     out.append(f"- Calibration: the map's 2-sigma band (|mean| <= 2 sd) holds a median {np.median(cal[:, 0]) * 100:.0f} % "
                f"of true surface points at 30 touches and {np.median(cal[:, 1]) * 100:.0f} % at 100 "
@@ -228,7 +282,7 @@ def run(quick: bool = False) -> str:
                f"cube), Scaling Series against the mapped mesh (`ProximityModel(mapped, 0.002, np.deg2rad(8), "
                f"outlier_distance={OUTLIER:g})`: a contact on surface the map lacks costs at most {OUTLIER:g} sigmas); "
                f"ADD-S measured against the true mesh: **{int(np.sum(e < 0.005))}/{len(e)} succeed (ADD-S < 5 mm)**, "
-               f"median ADD-S {np.median(e) * 1e3:.2f} mm, median time {np.median([x[2] for x in rt]):.1f} s "
+               f"median ADD-S {np.median(e) * 1e3:.2f} mm, median time {np.median([x[2] for x in rt]):.1f} s on one thread "
                f"(the mapped meshes have {int(np.median([x[4] for x in rt]))} faces (median); each one's grid is "
                f"built before timing, {len(rt) // len(MESHES) // len(seeds)} localisations per map). "
                f"Without the outlier cap: {int(np.sum(e0 < 0.005))}/{len(e0)} succeed, median ADD-S "
@@ -239,14 +293,12 @@ def run(quick: bool = False) -> str:
     # held out
     rows = []
     ho = []
-    for name, obj in _procedural().items():
-        for s in ([5] if quick else [5, 6]):
-            for noise in ((0.001, 5.0), (0.002, 10.0)):
-                a = trial(obj, s, noise=noise, checkpoints=(30, 100))
-                ho.append(a)
-                rows.append([name, s, f"{noise[0] * 1e3:.0f} mm / {noise[1]:.0f} deg", f"{a['chamfer'][30] * 1e3:.2f}",
-                             f"{a['fscore'][30]:.3f}", f"{a['chamfer'][100] * 1e3:.2f}", f"{a['fscore'][100]:.3f}",
-                             f"{a['calib'][30]:.2f} / {a['calib'][100]:.2f}"])
+    for name, s, noise in held:
+        a = got[name, s, noise]
+        ho.append(a)
+        rows.append([name, s, f"{noise[0] * 1e3:.0f} mm / {noise[1]:.0f} deg", f"{a['chamfer'][30] * 1e3:.2f}",
+                     f"{a['fscore'][30]:.3f}", f"{a['chamfer'][100] * 1e3:.2f}", f"{a['fscore'][100]:.3f}",
+                     f"{a['calib'][30]:.2f} / {a['calib'][100]:.2f}"])
     out.append("### Held out: procedural shapes, other seeds, noisier contacts\n")
     out.append(table(["shape", "seed", "noise", "Chamfer @30 (mm)", "F@5mm @30", "Chamfer @100 (mm)", "F@5mm @100",
                       "2-sigma band @30 / @100"], rows))
@@ -255,7 +307,7 @@ def run(quick: bool = False) -> str:
     # occupancy
     rows = []
     for name in ("can", "cereal"):
-        a = trial(meshes[name], 0, method="occupancy", checkpoints=(30, 100))
+        a = got[name, 0, "occ"]
         rows.append([name, f"{a['chamfer'][30] * 1e3:.2f}", f"{a['chamfer'][100] * 1e3:.2f}",
                      f"{np.median(a['update']) * 1e3:.1f}"])
     out.append("### Occupancy map (log-odds voxels, 64 cells along the longest side)\n")
@@ -264,20 +316,16 @@ def run(quick: bool = False) -> str:
     out.append(table(["mesh", "Chamfer @30 (mm)", "Chamfer @100 (mm)", "median update (ms)"], rows))
     # speed
     out.append("\n### Speed\n")
-    out.append(_speed(meshes["bunny"], quick))
+    out.append(_speed())
     out.append(f"\n_All trials: {time.perf_counter() - t_all:.0f} s._")
     return "\n".join(out)
 
 
-def _positions_only(meshes, seeds, cap):
-    """Free space against contacts only when the contacts carry no normals (uncertainty planner)."""
-    fr, hits = [], []
-    for obj in meshes.values():
-        for s in seeds:
-            f = trial(obj, s, normals=False, calib_at=())
-            n = trial(obj, s, normals=False, free_space=False, calib_at=())
-            fr.append([touches_to(f["chamfer"], n["chamfer"][k]) for k in (30, 100)])
-            hits.append((sum(r.hit for r in f["run"].results), sum(r.hit for r in n["run"].results)))
+def _positions_only(pairs, cap):
+    """Free space against contacts only when the contacts carry no normals (uncertainty planner):
+    ``pairs`` of trials (with free space, without)."""
+    fr = [[touches_to(f["chamfer"], n["chamfer"][k]) for k in (30, 100)] for f, n in pairs]
+    hits = [(f["hits"], n["hits"]) for f, n in pairs]
     fr, hits = np.minimum(np.array(fr, dtype=float), cap), np.array(hits)
     return (f"- Contacts without normals (positions only; uncertainty planner, {len(fr)} paired trials): with free "
             f"space the map reaches the contacts-only 30-touch accuracy after a median of {np.median(fr[:, 0]):.0f} "
@@ -290,7 +338,7 @@ def _positions_only(meshes, seeds, cap):
 BASELINE = "f4e652e"   # the mapping code before the incremental free-space pool and the variance scale
 
 
-def _speed(obj, quick):
+def _speed():
     """Per-touch update and 64^3 extraction, this tree against ``BASELINE``, in one run.
 
     Each code version runs in its own process with single-threaded BLAS, and both the
@@ -299,7 +347,6 @@ def _speed(obj, quick):
     the same work takes on an idle core.
     """
     import json
-    import os
     import subprocess
     import sys
     import tempfile
