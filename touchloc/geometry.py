@@ -31,7 +31,8 @@ except TypeError:  # pragma: no cover - older scipy
 
 def checked_rotations(R) -> Rotation:
     """:class:`Rotation` of (N, 3, 3) matrices that are already known to be rotations
-    (checked by ``as_poses`` or made from such).
+    (checked by ``as_poses`` or made from such); a single (3, 3) matrix gives a single
+    rotation.
 
     scipy's determinant and orthogonality checks cost about 13 times the conversion on a
     batch of particles. Where they find nothing to correct (deviations from orthogonality
@@ -39,7 +40,8 @@ def checked_rotations(R) -> Rotation:
     quaternions bit for bit; up to the 1e-6 that pose validation tolerates, they differ by
     that order.
     """
-    return Rotation.from_matrix(np.asarray(R, dtype=np.float64).reshape(-1, 3, 3), **_CHECKED)
+    R = np.asarray(R, dtype=np.float64)
+    return Rotation.from_matrix(R if R.shape == (3, 3) else R.reshape(-1, 3, 3), **_CHECKED)
 
 
 def make_poses(rotations, translations) -> np.ndarray:

@@ -61,10 +61,11 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.special import log_ndtr, logsumexp
+from scipy.special import log_ndtr
 
-from .._util import as_rng, blas_threads
+from .._util import as_rng, blas_threads, logsumexp1d
 from .._validate import as_bool, as_float, as_pose
+from ..geometry import checked_rotations
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
@@ -336,14 +337,14 @@ class TactileSLAM:
             D = st.get("odometry")
             if D is None:
                 continue
-            w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+            w = checked_rotations(D[:3, :3]).as_rotvec()
             theta = float(np.linalg.norm(w))
             if theta < 1e-9:
                 continue
             axis = w / theta
             # trajectory[0] is the initial pose; update k's pose is trajectory[k + 1]
             A, B = self.trajectory[k], self.trajectory[k + 1]
-            turned.append(float(Rotation.from_matrix(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis))
+            turned.append(float(checked_rotations(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis))
             reported.append(theta)
         n = len(turned)
         if n < 3:
@@ -369,7 +370,7 @@ class TactileSLAM:
         D = self._last_odometry
         if not self._PLAN_UNSEEN or D is None or self._turn_unseen <= 0:
             return C
-        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        w = checked_rotations(D[:3, :3]).as_rotvec()
         th = float(np.linalg.norm(w))
         if th < 1e-6:
             return C
@@ -392,7 +393,7 @@ class TactileSLAM:
         if D is not None and self.learn_odometry_scale:
             # the turn scaled by (s + ds) turns the object further by ds * w (object frame)
             F = np.eye(7)
-            F[3:6, 6] = R0.T @ Rotation.from_matrix(D[:3, :3]).as_rotvec()
+            F[3:6, 6] = R0.T @ checked_rotations(D[:3, :3]).as_rotvec()
             C = F @ C @ F.T
         C[:3, :3] += sig[0] ** 2 * Mt
         C[3:6, 3:6] += sig[1] ** 2 * Mr
@@ -432,11 +433,8 @@ class TactileSLAM:
         "fixing" a turn about its axis) it is too small, and a touch that then shows the
         turn (the handle) falls outside it. The shortfall is added as random motion.
         """
-        w = np.exp(self.log_w - logsumexp(self.log_w))
-        T0 = self._mean_pose(P)
-        R0, t0 = T0[:3, :3], T0[:3, 3]
-        xi = np.concatenate([(P[:, :3, 3] - t0) @ R0,
-                             Rotation.from_matrix(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
+        w = np.exp(self.log_w - logsumexp1d(self.log_w))
+        xi = self._twists(P, self._mean_pose(P))
         m = w @ xi
         Cp = np.einsum("n,ni,nj->ij", w, xi - m, xi - m)
         lam, V = np.linalg.eigh(self._cov[:6, :6] - Cp)
@@ -470,7 +468,7 @@ class TactileSLAM:
         """(N, 6) each pose of ``P`` as ``T0 exp(xi)``: translation and rotation vector, object frame."""
         R0, t0 = T0[:3, :3], T0[:3, 3]
         return np.concatenate([(P[:, :3, 3] - t0) @ R0,
-                               Rotation.from_matrix(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
+                               checked_rotations(np.einsum("ji,njk->nik", R0, P[:, :3, :3])).as_rotvec()], axis=1)
 
     @staticmethod
     def _from_twists(T0, xi):
@@ -513,7 +511,7 @@ class TactileSLAM:
         turn with it.
         """
         hits = [r.contact for r in results if r.contact is not None]
-        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        w = checked_rotations(D[:3, :3]).as_rotvec()
         if float(np.linalg.norm(w)) < 1e-6 or self.map.method != "gpis":
             return None
         c = Contacts.concatenate(hits) if hits else None
@@ -538,7 +536,7 @@ class TactileSLAM:
         Pb = self._from_twists(T0, base)
         N = len(P)
         pos, nor = self._contact_terms(Pb, c)
-        wt = np.exp(self.log_w - logsumexp(self.log_w))
+        wt = np.exp(self.log_w - logsumexp1d(self.log_w))
         m = float(wt @ d)
         sd = max(float(np.sqrt(wt @ (d - m) ** 2)), float(np.sqrt(max(u @ self._cov[:6, :6] @ u, 0.0))),
                  self.odometry_noise[1])
@@ -565,7 +563,7 @@ class TactileSLAM:
         lprior = np.logaddexp(np.log1p(-eps) - 0.5 * ((grid - m) / sd) ** 2 - np.log(np.sqrt(2 * np.pi) * sd),
                               np.log(eps / (2 * R)))
         lp = lprior + lg
-        pg = np.exp(lp - logsumexp(lp))
+        pg = np.exp(lp - logsumexp1d(lp))
         self._turn_post_var = float(pg @ (grid - pg @ grid) ** 2)
         k = self._systematic(pg, N)
         dn = grid[k] + self.rng.uniform(-0.5, 0.5, N) * self._TURN_STEP
@@ -609,7 +607,7 @@ class TactileSLAM:
 
     def _turn_made(self, since, theta):
         """(the turn applied over the steps after ``since`` and this one's ``theta``, their count)."""
-        turns = [float(np.linalg.norm(Rotation.from_matrix(st["motion"][0][:3, :3]).as_rotvec()))
+        turns = [float(np.linalg.norm(checked_rotations(st["motion"][0][:3, :3]).as_rotvec()))
                  for st in self._steps[since + 1:] if st["motion"] is not None]
         return float(np.sum(turns)) + theta, len(self._steps) - since
 
@@ -637,7 +635,7 @@ class TactileSLAM:
         """
         n = len(self._steps)
         anchor = self._anchor if anchor is None else anchor
-        w = Rotation.from_matrix(raw[:3, :3]).as_rotvec()
+        w = checked_rotations(raw[:3, :3]).as_rotvec()
         a = w / np.linalg.norm(w)
         q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
 
@@ -654,7 +652,7 @@ class TactileSLAM:
             if D is not None:
                 R = _scaled_turn(D, self.odometry_scale)[:3, :3] @ R
             Tj = T if j == n else self.trajectory[j + 1]
-            corr.append(float(Rotation.from_matrix(R @ Tj[:3, :3].T).as_rotvec() @ a))
+            corr.append(float(checked_rotations(R @ Tj[:3, :3].T).as_rotvec() @ a))
         c_a = corr[-1]
         if max(abs(c) for c in (corr if anchor == n else corr[-1:])) < self._REANCHOR_MIN:
             return T
@@ -702,10 +700,10 @@ class TactileSLAM:
         ``s * (odometry's turn so far) - (the estimate's turn)`` relative to its estimate.
         """
         n = len(self._steps)
-        w = Rotation.from_matrix(raw[:3, :3]).as_rotvec()
+        w = checked_rotations(raw[:3, :3]).as_rotvec()
         a = w / np.linalg.norm(w)
         turn = [0.0 if st["odometry"] is None else
-                float(Rotation.from_matrix(st["odometry"][:3, :3]).as_rotvec() @ a) for st in self._steps]
+                float(checked_rotations(st["odometry"][:3, :3]).as_rotvec() @ a) for st in self._steps]
         Dc = np.cumsum(turn + [float(w @ a)])
         R0 = self.trajectory[0][:3, :3]
         every = []
@@ -733,7 +731,7 @@ class TactileSLAM:
             for lst, x in ((u1, par), (u2, v - par), (u3, np.cross(a, v))):
                 x = x @ Tj[:3, :3]
                 lst.append(np.concatenate([x[:m], x[m:]], axis=1))
-            te = float(Rotation.from_matrix(Tj[:3, :3] @ R0.T).as_rotvec() @ a)
+            te = float(checked_rotations(Tj[:3, :3] @ R0.T).as_rotvec() @ a)
             A += [Dc[j]] * m
             B += [te] * m
             J += [j] * m
@@ -785,12 +783,12 @@ class TactileSLAM:
         seg = list(range(since + 1, len(self._steps)))
         if not seg or any(self._steps[j]["motion"] is None for j in seg):
             return
-        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        w = checked_rotations(D[:3, :3]).as_rotvec()
         a = w / np.linalg.norm(w)
         pred = D @ self.trajectory[-1]
-        c = float(Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ a)
+        c = float(checked_rotations(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ a)
         # the turn made at each step of the segment, as applied
-        turns = np.array([float(np.linalg.norm(Rotation.from_matrix(self._steps[j]["motion"][0][:3, :3]).as_rotvec()))
+        turns = np.array([float(np.linalg.norm(checked_rotations(self._steps[j]["motion"][0][:3, :3]).as_rotvec()))
                           for j in seg] + [float(np.linalg.norm(w))])
         share = np.cumsum(turns)[:-1] / turns.sum()
         moves = [None] * len(self.map.batches)
@@ -812,10 +810,10 @@ class TactileSLAM:
     def _mean_pose(self, P=None):
         """Weighted mean of the particles ``P`` (default: the current ones) under ``log_w``."""
         P = self.particles if P is None else P
-        w = np.exp(self.log_w - logsumexp(self.log_w))
+        w = np.exp(self.log_w - logsumexp1d(self.log_w))
         T = np.eye(4)
         T[:3, 3] = w @ P[:, :3, 3]
-        T[:3, :3] = Rotation.from_matrix(P[:, :3, :3]).mean(weights=w).as_matrix()
+        T[:3, :3] = checked_rotations(P[:, :3, :3]).mean(weights=w).as_matrix()
         return T
 
     @blas_threads
@@ -874,10 +872,10 @@ class TactileSLAM:
             else:
                 P, ll = got
             lw = self.log_w + ll
-            lw -= logsumexp(lw)
+            lw -= logsumexp1d(lw)
         else:
             lw = self.log_w
-        ess = float(np.exp(-logsumexp(2 * lw)))
+        ess = float(np.exp(-logsumexp1d(2 * lw)))
         self.info["ess"].append(ess)
         if ess < 0.5 * len(P):
             w = np.exp(lw)
@@ -1048,7 +1046,7 @@ class TactileSLAM:
         turn since the last step that showed one, and corrections beyond three standard
         deviations ignored; ``_TURN_REF`` and ``_SCALE_MIXTURE`` off.)
         """
-        w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+        w = checked_rotations(D[:3, :3]).as_rotvec()
         theta = float(np.linalg.norm(w))
         # the turn made since the last step that showed one: a correction now is the bias
         # of all of it, not of this step's turn alone
@@ -1072,7 +1070,7 @@ class TactileSLAM:
             if float(np.sum((lever @ a) ** 2 / r)) * self.odometry_noise[1] ** 2 < self._SCALE_MIN_INFO:
                 return
         pred = D @ self.trajectory[-1]
-        innov = Rotation.from_matrix(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
+        innov = checked_rotations(T[:3, :3] @ pred[:3, :3].T).as_rotvec() @ (w / theta)
         if self._turn_shown is not None and self._SCALE_KALMAN:
             # the correction is the relative scale error times the turn made unseen, U, plus the
             # odometry's noise over those steps and the correction's own error: a Kalman update
@@ -1222,7 +1220,7 @@ def _pose_jacobian(x, n, sigma_nor):
 
 def _scaled_turn(D, scale):
     """The rigid motion ``D`` with its turn angle scaled, about the same fixed axis."""
-    w = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+    w = checked_rotations(D[:3, :3]).as_rotvec()
     if np.linalg.norm(w) < 1e-9 or scale == 1.0:
         return D
     R = D[:3, :3]

@@ -36,6 +36,8 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..geometry import checked_rotations
+
 __all__ = ["smooth_trajectory"]
 
 
@@ -114,7 +116,7 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
     if fixed_turns is not None:
         fixed = np.flatnonzero(np.asarray(fixed_turns, bool) & free)
         # the motions' rotation vectors in one call (one call per step cost 0.2 ms each)
-        W = Rotation.from_matrix(Dm[fixed, :3, :3]).as_rotvec() if len(fixed) else np.zeros((0, 3))
+        W = checked_rotations(Dm[fixed, :3, :3]).as_rotvec() if len(fixed) else np.zeros((0, 3))
         for k, w in zip(fixed, W):
             th = float(np.linalg.norm(w))
             if th < 1e-9:
@@ -169,7 +171,7 @@ def smooth_trajectory(poses, anchor, points, normals, owner, motions, *, planar:
         fs = np.flatnonzero(free)
         RD, tD = Dm[fs, :3, :3], Dm[fs, :3, 3]
         et = T[fs, :3, 3] - (np.einsum("sij,sj->si", RD, prev[fs, :3, 3]) + tD)
-        er = Rotation.from_matrix(T[fs, :3, :3] @ np.transpose(prev[fs, :3, :3], (0, 2, 1))
+        er = checked_rotations(T[fs, :3, :3] @ np.transpose(prev[fs, :3, :3], (0, 2, 1))
                                   @ np.transpose(RD, (0, 2, 1))).as_rotvec()
         sig = sigm[fs][:, dof]                                              # (F, d)
         res.append((np.concatenate([et, er], 1)[:, dof] / sig).ravel())
