@@ -209,10 +209,48 @@ def test_tracked_free_space_mean_matches_the_direct_mean(sphere):
     for k in range(0, 30, 5):
         smap.update(res[k:k + 5])
     gp = smap._gp
-    assert len(gp.Q) == len(smap._free) > 50
+    assert len(gp.Q) == len(smap._free) > 20
     assert np.allclose(gp.tracked_mean(), gp.mean(smap._free), atol=1e-9)
     gp.refactor()
     assert np.allclose(gp.tracked_mean(), gp.mean(smap._free), atol=1e-9)
+
+
+def _pool_run(monkeypatch, sleep, mesh, moves=False):
+    """A map of 40 touches of ``mesh`` in batches of 4 (and, with ``moves``, a relocation of
+    every other batch half-way), with the pool's far points set aside or not."""
+    monkeypatch.setattr(ShapeMap, "_SLEEP", sleep)
+    res = _touches(mesh, 40, 3)
+    smap = ShapeMap(_bounds(mesh))
+    for k in range(0, 40, 4):
+        smap.update(res[k:k + 4])
+        if moves and k == 20:
+            from scipy.spatial.transform import Rotation
+
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.02]).as_matrix()
+            T[:3, 3] = [0.002, -0.001, 0.0]
+            smap.relocate([T if b % 2 else None for b in range(len(smap.batches))])
+    return smap
+
+
+@pytest.mark.parametrize("moves", [False, True])
+def test_far_pool_points_set_aside_change_no_bound(monkeypatch, objects, moves):
+    # a swept point becomes a bound only where the mean is below c + sd, and sd <= s: points
+    # whose mean clears c by 1.5 s cannot become bounds, so setting them aside must leave the
+    # same rows (the same bounds at the same places, in the same order) and the same map
+    mug = objects["mug"]
+    ref = _pool_run(monkeypatch, None, mug, moves)
+    got = _pool_run(monkeypatch, (1.5, 2.5), mug, moves)
+    n_asleep = len(got._asleep[0])
+    assert n_asleep > len(got._free)                       # most of the pool was set aside
+    assert len(ref._free) == len(got._free) + n_asleep     # and none was lost
+    assert got._gp.n == ref._gp.n and np.array_equal(got._gp.kind, ref._gp.kind)
+    assert np.allclose(got._gp.X, ref._gp.X, atol=1e-12)
+    q = mug.sample_surface(500, rng=4)[0]
+    assert np.allclose(got.signed_distance(q), ref.signed_distance(q), atol=1e-9)
+    # the set-aside points moved with their batches (the tracked ones are checked by the GP)
+    pool = {tuple(np.round(x, 12)) for x in np.concatenate([got._free, got._asleep[0]])}
+    assert pool == {tuple(np.round(x, 12)) for x in ref._free}
 
 
 def test_tracked_free_space_std_matches_the_direct_std(sphere):

@@ -145,6 +145,9 @@ class ShapeMap:
         self._pts_owner = np.zeros(0, dtype=np.int64)
         self._row_owner = np.zeros(0, dtype=np.int64)
         self._free_owner = np.zeros(0, dtype=np.int64)
+        # swept points the map puts far outside, set aside (see _activate_free): points,
+        # observation values and batches, as for the pool above
+        self._asleep = (np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64))
         self.superquadric = None
         if method == "gpis":
             self._gp = GPIS(self.lengthscale, self.signal_std, self._make_prior())
@@ -298,13 +301,34 @@ class ShapeMap:
             new.append(X[inside])
             val.append(np.full(int(inside.sum()), r + 0.002))
         if new:
-            self._free = np.concatenate([self._free] + new)
-            self._free_c = np.concatenate([self._free_c] + val)
-            self._free_owner = np.concatenate([self._free_owner, np.full(sum(map(len, new)), batch, dtype=np.int64)])
-            self._gp.track(np.concatenate(new))
+            X, c = np.concatenate(new), np.concatenate(val)
+            owner = np.full(len(X), batch, dtype=np.int64)
+            self._asleep = tuple(np.concatenate([a, b]) for a, b in zip(self._asleep, (X, c, owner)))
+            self._wake()
 
     _MAX_POOL = 4000
     _FREE_Z = -1.0   # a swept point becomes a bound once the map gives it P(f < c) > Phi(-1) = 16 %
+    #: the pool's points set aside while the map's mean there exceeds their bound by more
+    #: than this many prior standard deviations, and woken below the first (None: none
+    #: set aside); see _activate_free
+    _SLEEP = (1.5, 2.5)
+
+    def _wake(self):
+        """Track the set-aside swept points whose bound the map's mean no longer clears by
+        the margin (the new ones among them)."""
+        X, c, owner = self._asleep
+        if len(X) == 0:
+            return
+        wake = np.ones(len(X), bool)
+        if self._SLEEP is not None:
+            # single precision: errors of micrometres against a margin of millimetres
+            wake = self._gp.mean(X, dtype=np.float32) < c + self._SLEEP[0] * self.signal_std
+        if np.any(wake):
+            self._free = np.concatenate([self._free, X[wake]])
+            self._free_c = np.concatenate([self._free_c, c[wake]])
+            self._free_owner = np.concatenate([self._free_owner, owner[wake]])
+            self._gp.track(X[wake])
+            self._asleep = (X[~wake], c[~wake], owner[~wake])
 
     def _activate_free(self, rounds: int = 2, per_round: int = 64):
         """Add free-space bounds f(x) >= c where the map doubts them (most doubted first).
@@ -316,8 +340,16 @@ class ShapeMap:
         paths that pass far from the object: made random-touch maps of the cereal box 2.5x
         worse when applied beyond outright contradictions, and of the bread 13-27 % worse
         at 20-100 touches even when limited to them.)
+
+        Swept points whose bound the map's mean clears by more than ``_SLEEP[1]`` prior
+        standard deviations are set aside untracked, and tracked again once it clears them
+        by less than ``_SLEEP[0]`` (checked on every update): they could not become bounds
+        meanwhile, so the bounds are the same, and neither a relocation nor an added row
+        pays for their columns.
         """
-        for _ in range(rounds):
+        for r in range(rounds):
+            if r:
+                self._wake()        # (the first round's bounds changed the map)
             if len(self._free) == 0 or self._gp.n == 0:
                 break
             mu, sd = self._gp.tracked_mean(), self._gp.tracked_std()
@@ -335,13 +367,26 @@ class ShapeMap:
             keep = np.ones(len(self._free), bool)
             keep[idx] = False
             self._drop_free(keep)
-        if len(self._free) > self._MAX_POOL and self._gp.n:
+        X, c, _ = self._asleep
+        if len(self._free) + len(X) > self._MAX_POOL and self._gp.n:
             # bound the pool: forget the points the map puts farthest outside, the least
             # likely ever to contradict it
-            mu = self._gp.tracked_mean() - self._free_c
-            keep = np.zeros(len(self._free), bool)
+            mu = np.concatenate([self._gp.tracked_mean() - self._free_c, self._gp.mean(X) - c])
+            keep = np.zeros(len(mu), bool)
             keep[np.argsort(mu)[:self._MAX_POOL // 2]] = True
-            self._drop_free(keep)
+            self._asleep = tuple(a[keep[len(self._free):]] for a in self._asleep)
+            self._drop_free(keep[:len(self._free)])
+        if self._SLEEP is not None and len(self._free) and self._gp.n:
+            # set aside the points whose bound the map's mean clears by far: a bound is only
+            # added where the mean is below c + sd (_FREE_Z), and sd never exceeds the prior's
+            # s, so these cannot become bounds until they wake (checked before each round).
+            # Their columns of the tracked block are what a relocation and every added row
+            # pay for: most of a pool (85-90 % on an in-hand mug) lies far outside.
+            far = self._gp.tracked_mean() > self._free_c + self._SLEEP[1] * self.signal_std
+            if np.any(far):
+                self._asleep = tuple(np.concatenate([a, b[far]]) for a, b in
+                                     zip(self._asleep, (self._free, self._free_c, self._free_owner)))
+                self._drop_free(~far)
 
     def _drop_free(self, keep):
         self._free, self._free_c, self._free_owner = self._free[keep], self._free_c[keep], self._free_owner[keep]
@@ -422,6 +467,7 @@ class ShapeMap:
         if self._has_normals and len(self._nrm) == len(self._pts):
             self._nrm = moved(self._nrm, self._pts_owner, rotate_only=True)
         self._free = moved(self._free, self._free_owner)
+        self._asleep = (moved(self._asleep[0], self._asleep[2]),) + self._asleep[1:]
         if self.method == "gpis":
             gp = self._gp
             X = moved(gp.X, self._row_owner)
