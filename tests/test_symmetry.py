@@ -101,6 +101,25 @@ def test_prisms_have_their_dihedral_groups():
     assert angles[1] == pytest.approx(np.pi / 3, abs=1e-6)
 
 
+def test_closure_of_an_exact_group_is_the_group_and_of_near_symmetries_stops_at_its_limit():
+    from touchloc.models.symmetry import _close
+
+    R0 = Rotation.random(random_state=3).as_matrix()
+    T = R0 @ Rotation.create_group("T").as_matrix() @ R0.T
+    G = _close([T[4], T[7]])                       # two turns generate the tetrahedral group
+    assert len(G) == 12 and np.array_equal(G[0], np.eye(3))
+    d = np.abs(G[:, None, None] @ G[None, :, None] - G[None, None]).max(axis=(3, 4)).min(axis=2)
+    assert d.max() < 1e-9                          # closed under composition
+    # half-turns about axes 3 degrees apart in a plane: what a lumpy spheroid (a mapped lemon)
+    # passes within a tolerance. Their products are turns by every multiple of 6 degrees
+    # about the normal, and beyond: the set must stop at the limit, not grow without end
+    u = np.radians(np.arange(0.0, 180.0, 3.0))
+    flips = Rotation.from_rotvec(np.pi * np.stack([np.cos(u), np.sin(u), 0 * u], 1)).as_matrix()
+    H = _close(list(flips[:20]), limit=90)
+    assert len(H) == 90
+    assert np.abs(H[1:, None] - H[None, 1:]).max(axis=(2, 3))[np.triu_indices(89, 1)].min() >= 1e-6
+
+
 def test_symmetric_pose_error_ignores_symmetric_turns_only(meshes):
     rng = np.random.default_rng(0)
     T = np.eye(4)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 from .._validate import as_bool, as_float_array, as_nonnegative_float, as_poses, as_probability
@@ -279,25 +280,37 @@ class _Tester:
 
 
 def _close(rots, limit=120):
-    """Closure of a set of rotations under composition (deduplicated), identity first."""
+    """Closure of a set of rotations under composition (deduplicated), identity first; at
+    most ``limit`` rotations.
+
+    Near-symmetries of a shape that has none exactly (a mapped, slightly lumpy spheroid
+    passes many half-turns within the tolerance) compose into ever new rotations: the set
+    stops growing at ``limit``, and the caller keeps only the elements that pass its test.
+    Products are made, and checked against the set, one left factor at a time in one
+    array operation, in the order of a double loop over the set.
+    """
     out = [np.eye(3)]
 
-    def add(R):
-        for S in out:
-            if np.abs(S - R).max() < 1e-6:
-                return False
-        out.append(R)
-        return True
+    def merge(cands):
+        for R in cands:
+            if len(out) >= limit:
+                return
+            if np.abs(np.asarray(out) - R).max(axis=(1, 2)).min() >= 1e-6:
+                out.append(R)
 
-    for R in rots:
-        add(R)
+    merge(rots)
     changed = True
     while changed and len(out) < limit:
         changed = False
         for A in list(out):
-            for B in list(out):
-                if add(A @ B):
-                    changed = True
+            if len(out) >= limit:
+                break
+            P = A @ np.asarray(out)
+            # products already in the set are skipped without a Python loop
+            new = cdist(P.reshape(-1, 9), np.asarray(out).reshape(-1, 9), "chebyshev").min(axis=1) >= 1e-6
+            n0 = len(out)
+            merge(P[new])
+            changed = changed or len(out) > n0
     return np.array(out)
 
 
