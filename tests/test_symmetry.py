@@ -86,6 +86,24 @@ def test_a_sphere_and_a_tight_tolerance():
         box.symmetries(tol=-1.0)
 
 
+def test_the_sphere_test_alone_answers_as_the_whole_search(meshes):
+    # Scaling Series asks only whether a mesh is a sphere: the first test of the search,
+    # run alone on a fresh object, must give the search's answer
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fresh = {n: MeshObject(o.mesh.copy(), name=n) for n, o in meshes.items()}
+        fresh["ball"] = MeshObject(trimesh.creation.icosphere(subdivisions=3, radius=0.04), name="ball")
+    for name, obj in fresh.items():
+        alone = obj._sphere_symmetry()
+        assert "sphere" in obj._cache and ("symmetries", None) not in obj._cache, name
+        whole = obj.symmetries()
+        assert (alone is not None) == whole.sphere, name
+        if alone is not None:
+            assert np.array_equal(alone.center, whole.center) and alone.tol == whole.tol
+        assert (obj._sphere_symmetry() is whole) == whole.sphere        # the whole search's, once run
+    assert fresh["ball"]._sphere_symmetry().sphere
+
+
 def test_prisms_have_their_dihedral_groups():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

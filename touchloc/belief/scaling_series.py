@@ -207,6 +207,8 @@ class ScalingSeries:
             return None
         if isinstance(sym, str):
             obj = getattr(self.model, "obj", None)
+            if callable(getattr(obj, "_sphere_symmetry", None)):
+                return obj._sphere_symmetry()      # (the sphere's test alone)
             if obj is None or not callable(getattr(obj, "symmetries", None)):
                 return None
             sym = obj.symmetries()

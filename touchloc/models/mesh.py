@@ -274,6 +274,18 @@ class MeshObject:
             self._cache[key] = sym
         return sym
 
+    def _sphere_symmetry(self):
+        """:meth:`symmetries` if it is a sphere's, else None: only its first test (cached),
+        unless the whole search has run already."""
+        full = self._cache.get(("symmetries", None))
+        if full is not None:
+            return full if full.sphere else None
+        if "sphere" not in self._cache:
+            from .symmetry import _find_sphere
+
+            self._cache["sphere"] = _find_sphere(self)
+        return self._cache["sphere"]
+
     def bvh(self, normal_weight: float):
         """The cached bounding-volume hierarchy used by exact queries.
 

@@ -314,6 +314,40 @@ def _close(rots, limit=120):
     return np.array(out)
 
 
+_EQ_TOL = 0.03   # second moments this close (relative to the largest) count as equal
+
+
+def _setup(obj, tol, quantile, n_samples, rng):
+    """The tolerance, the surface's centroid and principal moments and axes, and the test
+    of candidate rotations, as :func:`find_symmetries` uses them."""
+    if tol is None:
+        tol = 0.02 * float(obj.extents.max())
+    if not (np.isfinite(tol) and tol > 0):
+        raise ValidationError(f"tol must be a positive distance in metres, got {tol}")
+    _, c, C = surface_moments(obj)
+    ev, vec = np.linalg.eigh(C)
+    if not 0 < quantile <= 1:
+        raise ValidationError(f"quantile must be in (0, 1], got {quantile}")
+    return tol, c, ev, vec, _Tester(obj, c, int(n_samples), rng, float(quantile))
+
+
+def _sphere(tol, c, ev, test, quantile) -> Symmetry | None:
+    """A sphere's symmetry if all moments are equal and random rotations fit, else None."""
+    if abs(ev[0] - ev[2]) / max(ev.max(), 1e-30) < _EQ_TOL:
+        R = Rotation.random(6, random_state=1).as_matrix()
+        if np.all(test(R) <= tol):
+            return Symmetry(np.eye(3)[None], c, None, True, True, tol, quantile)
+    return None
+
+
+def _find_sphere(obj, tol: float | None = None) -> Symmetry | None:
+    """The first test of :func:`find_symmetries` alone, with its defaults: ``obj``'s
+    symmetry if it is a sphere, else None (the same answer as ``find_symmetries(obj,
+    tol)`` for a sphere, without the other tests where the object is not one)."""
+    tol, c, ev, _, test = _setup(obj, tol, 0.95, 400, 0)
+    return _sphere(tol, c, ev, test, 0.95)
+
+
 def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_samples: int = 400,
                     rng=0, max_order: int = 12) -> Symmetry:
     """The rotations that map ``obj``'s surface onto itself within ``tol``.
@@ -339,23 +373,12 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_
     -------
     Symmetry
     """
-    if tol is None:
-        tol = 0.02 * float(obj.extents.max())
-    if not (np.isfinite(tol) and tol > 0):
-        raise ValidationError(f"tol must be a positive distance in metres, got {tol}")
-    _, c, C = surface_moments(obj)
-    ev, vec = np.linalg.eigh(C)
-    if not 0 < quantile <= 1:
-        raise ValidationError(f"quantile must be in (0, 1], got {quantile}")
-    test = _Tester(obj, c, int(n_samples), rng, float(quantile))
+    tol, c, ev, vec, test = _setup(obj, tol, quantile, n_samples, rng)
     rel = lambda i, j: abs(ev[i] - ev[j]) / max(ev.max(), 1e-30)  # noqa: E731
-    eq_tol = 0.03
-
-    # a sphere: all moments equal and random rotations fit
-    if rel(0, 2) < eq_tol:
-        R = Rotation.random(6, random_state=1).as_matrix()
-        if np.all(test(R) <= tol):
-            return Symmetry(np.eye(3)[None], c, None, True, True, tol, quantile)
+    eq_tol = _EQ_TOL
+    sphere = _sphere(tol, c, ev, test, quantile)
+    if sphere is not None:
+        return sphere
     # an axis whose two other moments are equal may be an axis of revolution
     special_i = None
     if rel(0, 1) < eq_tol and rel(1, 2) >= eq_tol:
