@@ -68,6 +68,21 @@ def test_simulate_rotated_pose_and_sphere_probe(box):
     assert flat.points[0, 1, 0] == pytest.approx(0.03, abs=1e-6)  # the contact is on the face
 
 
+def test_trusted_touches_are_the_checked_constructors_touches():
+    # planners build touches from values they computed themselves without the checks: the
+    # touch must be the one the constructor makes (normalised direction, read-only arrays)
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        o, d = rng.normal(size=3), rng.normal(size=3) * rng.uniform(0.1, 10)
+        travel, r = rng.uniform(0.01, 1), rng.uniform(0, 0.01)
+        a, b = GuardedTouch(o, d, travel, r, name="t"), GuardedTouch._trusted(o, d, travel, r, "t")
+        assert np.array_equal(a.origin, b.origin) and np.array_equal(a.direction, b.direction)
+        assert (a.max_travel, a.probe_radius, a.name) == (b.max_travel, b.probe_radius, b.name)
+        assert a == b and hash(a) == hash(b)
+        assert not b.origin.flags.writeable and not b.direction.flags.writeable
+        assert type(b.max_travel) is float and type(b.probe_radius) is float
+
+
 def test_hand_touch_is_several_fingers(box):
     hand = HandTouch((GuardedTouch((0.3, 0, 0), (-1, 0, 0), 0.5), GuardedTouch((-0.3, 0, 0), (1, 0, 0), 0.5)))
     out = simulate(box, np.eye(4)[None], [GuardedTouch((0, 0.3, 0), (0, -1, 0), 0.5), hand])

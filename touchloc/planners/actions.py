@@ -63,6 +63,25 @@ class GuardedTouch:
         object.__setattr__(self, "max_travel", float(self.max_travel))
         object.__setattr__(self, "probe_radius", float(self.probe_radius))
 
+    @classmethod
+    def _trusted(cls, origin, direction, max_travel: float, probe_radius: float, name: str = ""):
+        """The touch the constructor makes from values already known to be valid (a finite
+        origin, a finite non-zero direction, a positive travel and a radius >= 0, such as
+        a planner computes), without its checks: a planner makes hundreds per action, and
+        the checks cost ten times the rest."""
+        self = object.__new__(cls)
+        o = np.asarray(origin, dtype=np.float64).reshape(-1)
+        d = np.asarray(direction, dtype=np.float64).reshape(-1)
+        o.flags.writeable = False
+        d = d / np.linalg.norm(d)
+        d.flags.writeable = False
+        object.__setattr__(self, "origin", o)
+        object.__setattr__(self, "direction", d)
+        object.__setattr__(self, "max_travel", float(max_travel))
+        object.__setattr__(self, "probe_radius", float(probe_radius))
+        object.__setattr__(self, "name", name)
+        return self
+
     @property
     def end(self) -> np.ndarray:
         """(3,) float: where the probe stops if it touches nothing."""
