@@ -321,8 +321,10 @@ class ShapeMap:
             return
         wake = np.ones(len(X), bool)
         if self._SLEEP is not None:
-            # single precision: errors of micrometres against a margin of millimetres
-            wake = self._gp.mean(X, dtype=np.float32) < c + self._SLEEP[0] * self.signal_std
+            # single precision where its errors (micrometres) are far below the margin
+            # between waking and a possible bound (half a prior standard deviation)
+            dtype = np.float32 if self.signal_std > 2e-4 else np.float64
+            wake = self._gp.mean(X, dtype=dtype) < c + self._SLEEP[0] * self.signal_std
         if np.any(wake):
             self._free = np.concatenate([self._free, X[wake]])
             self._free_c = np.concatenate([self._free_c, c[wake]])
