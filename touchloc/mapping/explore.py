@@ -88,6 +88,7 @@ def hand_pool(bounds, n: int = 20, *, fingers: int = 3, rng=None, margin: float 
     rng = as_rng(rng)
     c0, R = _reach(lo, hi, margin)
     planar = as_bool(planar, "planar")
+    probe_radius = as_nonnegative_float(probe_radius, "probe_radius (m)")   # (the touches are not re-checked)
     out = []
     for i in range(n):
         c = c0 + rng.uniform(-0.25, 0.25, 3) * (hi - lo)
