@@ -315,6 +315,13 @@ def _close(rots, limit=120):
 
 
 _EQ_TOL = 0.03   # second moments this close (relative to the largest) count as equal
+# find_symmetries' defaults, which the sphere's test alone (_find_sphere) shares
+_QUANTILE, _N_SAMPLES, _RNG = 0.95, 400, 0
+
+
+def _rel(ev, i, j) -> float:
+    """The difference of principal moments i and j relative to the largest."""
+    return abs(ev[i] - ev[j]) / max(ev.max(), 1e-30)
 
 
 def _setup(obj, tol, quantile, n_samples, rng):
@@ -333,7 +340,7 @@ def _setup(obj, tol, quantile, n_samples, rng):
 
 def _sphere(tol, c, ev, test, quantile) -> Symmetry | None:
     """A sphere's symmetry if all moments are equal and random rotations fit, else None."""
-    if abs(ev[0] - ev[2]) / max(ev.max(), 1e-30) < _EQ_TOL:
+    if _rel(ev, 0, 2) < _EQ_TOL:
         R = Rotation.random(6, random_state=1).as_matrix()
         if np.all(test(R) <= tol):
             return Symmetry(np.eye(3)[None], c, None, True, True, tol, quantile)
@@ -344,12 +351,12 @@ def _find_sphere(obj, tol: float | None = None) -> Symmetry | None:
     """The first test of :func:`find_symmetries` alone, with its defaults: ``obj``'s
     symmetry if it is a sphere, else None (the same answer as ``find_symmetries(obj,
     tol)`` for a sphere, without the other tests where the object is not one)."""
-    tol, c, ev, _, test = _setup(obj, tol, 0.95, 400, 0)
-    return _sphere(tol, c, ev, test, 0.95)
+    tol, c, ev, _, test = _setup(obj, tol, _QUANTILE, _N_SAMPLES, _RNG)
+    return _sphere(tol, c, ev, test, _QUANTILE)
 
 
-def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_samples: int = 400,
-                    rng=0, max_order: int = 12) -> Symmetry:
+def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTILE, n_samples: int = _N_SAMPLES,
+                    rng=_RNG, max_order: int = 12) -> Symmetry:
     """The rotations that map ``obj``'s surface onto itself within ``tol``.
 
     Parameters
@@ -374,7 +381,7 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = 0.95, n_
     Symmetry
     """
     tol, c, ev, vec, test = _setup(obj, tol, quantile, n_samples, rng)
-    rel = lambda i, j: abs(ev[i] - ev[j]) / max(ev.max(), 1e-30)  # noqa: E731
+    rel = lambda i, j: _rel(ev, i, j)  # noqa: E731
     eq_tol = _EQ_TOL
     sphere = _sphere(tol, c, ev, test, quantile)
     if sphere is not None:

@@ -55,13 +55,17 @@ class GuardedTouch:
             raise ValidationError(f"GuardedTouch.direction must be 3 finite numbers, not all zero, got {self.direction!r}")
         as_positive_float(self.max_travel, "GuardedTouch.max_travel (m)")
         as_nonnegative_float(self.probe_radius, "GuardedTouch.probe_radius (m)")
+        self._store(o, d, self.max_travel, self.probe_radius)
+
+    def _store(self, o, d, max_travel, probe_radius) -> None:
+        """Set the fields from checked values: the direction normalised, the arrays read-only."""
         o.flags.writeable = False
         d = d / np.linalg.norm(d)
         d.flags.writeable = False
         object.__setattr__(self, "origin", o)
         object.__setattr__(self, "direction", d)
-        object.__setattr__(self, "max_travel", float(self.max_travel))
-        object.__setattr__(self, "probe_radius", float(self.probe_radius))
+        object.__setattr__(self, "max_travel", float(max_travel))
+        object.__setattr__(self, "probe_radius", float(probe_radius))
 
     @classmethod
     def _trusted(cls, origin, direction, max_travel: float, probe_radius: float, name: str = ""):
@@ -70,16 +74,8 @@ class GuardedTouch:
         a planner computes), without its checks: a planner makes hundreds per action, and
         the checks cost ten times the rest."""
         self = object.__new__(cls)
-        o = np.asarray(origin, dtype=np.float64).reshape(-1)
-        d = np.asarray(direction, dtype=np.float64).reshape(-1)
-        o.flags.writeable = False
-        d = d / np.linalg.norm(d)
-        d.flags.writeable = False
-        object.__setattr__(self, "origin", o)
-        object.__setattr__(self, "direction", d)
-        object.__setattr__(self, "max_travel", float(max_travel))
-        object.__setattr__(self, "probe_radius", float(probe_radius))
         object.__setattr__(self, "name", name)
+        self._store(_vec3(origin), _vec3(direction), max_travel, probe_radius)
         return self
 
     @property
