@@ -672,6 +672,11 @@ def test_gpis_factor_in_two_parts_and_lazily_dropped_pool_points_agree_with_a_re
         mu, sd = gp.mean_std(gp.Q)
         assert np.allclose(gp.tracked_mean(), mu, atol=1e-10)
         assert np.allclose(gp.tracked_std(), sd, atol=1e-10)
+        # the planner's single-precision solve, through both parts of the factor (off by
+        # about 1e-7 m here, at a signal deviation of 1 cm)
+        mu32, sd32 = gp.mean_std(gp.Q, dtype=np.float32)
+        assert np.abs(mu32 - mu).max() < 1e-6 and np.abs(sd32 - sd).max() < 1e-6
+        assert np.abs(mu32 - mu).max() > 0.0 or np.abs(sd32 - sd).max() > 0.0   # (another precision ran)
         L, dKi = gp.L.copy(), gp._dKi.copy()
         ref = GPIS(gp.l, np.sqrt(gp.s2), prior)
         ref.add(gp.X, gp.kind, gp.y, gp.noise)

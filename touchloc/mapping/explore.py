@@ -204,8 +204,13 @@ def _ray_samples(smap, touches, samples):
     P = O[:, None, :] + T[..., None] * D[:, None, :]
     # the model's own variance, without the calibration scale: the scale is one number for
     # the whole map, so it adds nothing to the ranking but blurs the stop probabilities
-    # (with it: median Chamfer 1.48 mm at 100 touches on the bundled meshes; without: 1.11)
-    mu, sd = smap.mean_std(P.reshape(-1, 3), calibrated=False)
+    # (with it: median Chamfer 1.48 mm at 100 touches on the bundled meshes; without: 1.11).
+    # A GPIS solves in single precision here: twice as fast, and its deviations are off by
+    # well under a micrometre, which no ranking of touches notices
+    if smap.method == "gpis":
+        mu, sd = smap._gp.mean_std(P.reshape(-1, 3), calibrated=False, dtype=np.float32)
+    else:
+        mu, sd = smap.mean_std(P.reshape(-1, 3), calibrated=False)
     if smap.method == "gpis":
         p_in = ndtr(-mu / sd)
     else:

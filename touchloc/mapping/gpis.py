@@ -200,22 +200,31 @@ class GPIS:
         L[n0:, :] = self._Tb[:n - n0, :n]
         return L
 
-    def _solve(self, B, trans: bool = False) -> np.ndarray:
-        """L^-1 B, or L^-T B with ``trans``, for (n, k) or (n,) B."""
+    def _blocks(self, dtype=np.float64):
+        """(L0, T0, T1): the factor's leading block, and its later rows split at the leading
+        block's width, as ``dtype`` arrays (copies in any other type than float64)."""
         n0, n1 = len(self._L0), self.n - len(self._L0)
-        B = np.asarray(B, float)
+        T0, T1 = self._Tb[:n1, :n0], self._Tb[:n1, n0:n0 + n1]
+        if dtype == np.float64:
+            return self._L0, T0, np.ascontiguousarray(T1)
+        return self._L0.astype(dtype), T0.astype(dtype), T1.astype(dtype)
+
+    def _solve(self, B, trans: bool = False, blocks=None) -> np.ndarray:
+        """L^-1 B, or L^-T B with ``trans``, for (n, k) or (n,) B; with ``blocks`` (from
+        :meth:`_blocks`), in their precision."""
+        L0, T0, T1 = self._blocks() if blocks is None else blocks
+        n0, n1 = len(L0), len(T1)
+        B = np.asarray(B, L0.dtype)
         if n1 == 0:
-            return solve_triangular(self._L0, B, lower=True, trans="T" if trans else "N", check_finite=False)
-        T0 = self._Tb[:n1, :n0]
-        T1 = np.ascontiguousarray(self._Tb[:n1, n0:n0 + n1])
+            return solve_triangular(L0, B, lower=True, trans="T" if trans else "N", check_finite=False)
         out = np.empty_like(B)
         if not trans:
-            out[:n0] = solve_triangular(self._L0, B[:n0], lower=True, check_finite=False) if n0 else B[:n0]
+            out[:n0] = solve_triangular(L0, B[:n0], lower=True, check_finite=False) if n0 else B[:n0]
             out[n0:] = solve_triangular(T1, B[n0:] - T0 @ out[:n0], lower=True, check_finite=False)
         else:
             out[n0:] = solve_triangular(T1, B[n0:], lower=True, trans="T", check_finite=False)
             if n0:
-                out[:n0] = solve_triangular(self._L0, B[:n0] - T0.T @ out[n0:], lower=True, trans="T",
+                out[:n0] = solve_triangular(L0, B[:n0] - T0.T @ out[n0:], lower=True, trans="T",
                                             check_finite=False)
         return out
 
@@ -613,11 +622,13 @@ class GPIS:
                 + self.s2 * Ab
         return m + mu, gm + grad
 
-    def mean_std(self, Q, *, calibrated: bool = True):
+    def mean_std(self, Q, *, calibrated: bool = True, dtype=np.float64):
         """(M,) posterior mean and standard deviation of f at query points.
 
         ``calibrated=False`` leaves out the leave-one-out variance scale (the variance
-        under the sensor's own noise model).
+        under the sensor's own noise model). ``dtype=np.float32`` solves with the factor in
+        single precision, 2-3 times faster: the deviation is then off by about 1e-7 m at a
+        signal deviation of 1 cm, which ranking a planner's candidates does not notice.
         """
         Q = np.asarray(Q, float).reshape(-1, 3)
         m, _ = self.prior(Q)
@@ -626,12 +637,13 @@ class GPIS:
         lam = self.scale if calibrated else 1.0
         mu = np.empty(len(Q))
         var = np.empty(len(Q))
-        z = self.z      # the variance needs V = L^-1 k(X, q) anyway: the mean is V^T z (no back-substitution)
+        blocks = self._blocks(dtype)
+        z = self.z.astype(dtype)      # the variance needs V = L^-1 k(X, q) anyway: the mean is V^T z
         for i in range(0, len(Q), _CHUNK):
             q = Q[i:i + _CHUNK]
-            V = self._solve(self._kx(q))
+            V = self._solve(self._kx(q), blocks=blocks)
             mu[i:i + len(q)] = V.T @ z
-            var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V)
+            var[i:i + len(q)] = self.s2 - np.einsum("ij,ij->j", V, V).astype(float)
         return m + mu, np.sqrt(np.minimum(lam * np.maximum(var, 1e-18), self.s2))
 
 
