@@ -9,8 +9,8 @@ alternating order for ``--rounds`` rounds so that both see the same load on a sh
 machine. Where the two versions take the same touches (a change that keeps the results),
 the updates are paired and the ratio is the median over updates of REV / this checkout;
 otherwise only the medians per bin are comparable. The updates that ran a smoothing
-round (the tail of the distribution) are also paired apart. Prints a Markdown table;
-nothing is written to docs/.
+round (the tail of the distribution) are also paired apart; so is the explorer's planning
+before each update (wall clock). Prints Markdown tables; nothing is written to docs/.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def main(argv=None) -> int:
             if got is None:
                 print(f"no commit {a.rev!r} in this repository", file=sys.stderr)
                 return 2
-            out.append(got[3])   # three fingers: (contacts after each update, CPU s, smoother runs, smoothed)
+            out.append(got[3])   # three fingers: (contacts after each update, CPU s, smoother runs, smoothed, plan s)
     same = all(np.array_equal(c[0], b[0]) for c in cur for b in base)
     rows = []
     for lo, hi in BINS:
@@ -86,7 +86,32 @@ def main(argv=None) -> int:
           f"{os.cpu_count()} cores at the end; the two versions took {'the same' if same else 'other'} touches.\n")
     print(table(["contacts in the map", f"{a.rev} median (ms), per round", "this checkout median (ms), per round",
                  f"{a.rev} p95 (ms)", "this checkout p95 (ms)", "paired ratio per round"], rows))
+    if all(len(r) > 4 for r in cur + base):
+        print("\nThe explorer's planning before each update (wall clock, the same runs):\n")
+        print(table(["contacts in the map", f"{a.rev} median (ms), per round", "this checkout median (ms), per round",
+                     "paired ratio per round"], _plan_rows(cur, base, same)))
     return 0
+
+
+def _plan_rows(cur, base, same):
+    """Rows of the planning table: per bin of the map's contacts, medians per round and,
+    where the versions took the same touches, the median paired ratio."""
+    rows = []
+    for lo, hi in BINS:
+        meds_c, meds_b, ratios = [], [], []
+        for c, b in zip(cur, base):
+            cc, pc, bc, pb = np.array(c[0]), np.array(c[4]), np.array(b[0]), np.array(b[4])
+            sc, sb = (cc > lo) & (cc <= hi), (bc > lo) & (bc <= hi)
+            if np.any(sc) and np.any(sb):
+                meds_c.append(np.median(pc[sc]) * 1e3)
+                meds_b.append(np.median(pb[sb]) * 1e3)
+                if same:
+                    ratios.append(np.median(pb[sb] / pc[sc]))
+        if meds_c:
+            rows.append([f"{lo + 1}-{hi}", " / ".join(f"{m:.0f}" for m in meds_b),
+                         " / ".join(f"{m:.0f}" for m in meds_c),
+                         " / ".join(f"{x:.2f}x" for x in ratios) if same else "(other touches)"])
+    return rows
 
 
 if __name__ == "__main__":

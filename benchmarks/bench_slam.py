@@ -363,7 +363,7 @@ TIMING_BASELINE = "e91e192"   # before the tracked pose covariance
 def _timing_raw(quick):
     """CPU time of each update in one long run per hand, single-threaded, in this process:
     {fingers: (contacts in the map after each update, seconds, smoother runs, whether each
-    update smoothed)}."""
+    update smoothed, the explorer's planning before each update in wall-clock seconds)}."""
     import warnings
 
     from touchloc.mapping import MovingWorld, TactileSLAM, explore
@@ -375,7 +375,7 @@ def _timing_raw(quick):
     for fingers, steps in ((1, 200), (3, 100 if quick else 200)):
         world = MovingWorld(obj, rng=0, push=PUSH, planar=True)
         slam = TactileSLAM((lo - 0.03, hi + 0.03), planar=True, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0), rng=0)
-        cpu, counts, smoothed = [], [], []
+        cpu, counts, smoothed, plan = [], [], [], []
         orig = slam.update
 
         def timed(*a, **k):
@@ -388,8 +388,8 @@ def _timing_raw(quick):
 
         slam.update = timed
         explore(world, (lo - 0.06, hi + 0.06), steps, slam=slam, fingers=fingers, rng=0,
-                callback=lambda run, step: counts.append(step["contacts"]))
-        out[fingers] = (counts, cpu, len(slam.info["smoothing"]), smoothed)
+                callback=lambda run, step: (counts.append(step["contacts"]), plan.append(step["plan_time"])))
+        out[fingers] = (counts, cpu, len(slam.info["smoothing"]), smoothed, plan)
     return out
 
 
@@ -415,7 +415,7 @@ def _timing(quick):
     base = _timing_child(quick, TIMING_BASELINE)
     now = _timing_child(quick)
     rows = []
-    for fingers, (counts, cpu, n_smooth, _) in now.items():
+    for fingers, (counts, cpu, n_smooth, *_) in now.items():
         counts, cpu = np.array(counts), np.array(cpu)
         b = None
         if base is not None and fingers in base:
