@@ -138,6 +138,63 @@ def test_closure_of_an_exact_group_is_the_group_and_of_near_symmetries_stops_at_
     assert np.abs(H[1:, None] - H[None, 1:]).max(axis=(2, 3))[np.triu_indices(89, 1)].min() >= 1e-6
 
 
+def _closed(G):
+    """Largest distance of a product of two elements from the set (0 for a group)."""
+    return np.abs(G[:, None, None] @ G[None, :, None] - G[None, None]).max(axis=(3, 4)).min(axis=2).max()
+
+
+def test_near_symmetries_that_do_not_compose_leave_the_largest_group_that_passes():
+    """Half-turns that pass one by one but whose products do not (what a lumpy mapped
+    spheroid gives): the answer is a group built from the best-fitting ones, every
+    element of which passes, not their unbounded closure."""
+    from touchloc.models.symmetry import _close, _passing_group
+
+    def flip(deg):
+        u = np.radians(deg)
+        return Rotation.from_rotvec(np.pi * np.array([np.cos(u), np.sin(u), 0.0])).as_matrix()
+
+    d2 = np.array([np.eye(3), flip(0), flip(90), np.diag([-1.0, -1.0, 1.0])])
+    passing = np.concatenate([d2, [flip(3), flip(93)]])
+
+    def test(R):   # 0 for the passing rotations, 1 for any other
+        R = np.asarray(R).reshape(-1, 3, 3)
+        return np.where(np.abs(R[:, None] - passing[None]).max(axis=(2, 3)).min(axis=1) < 1e-9, 0.0, 1.0)
+
+    found = [flip(0), flip(3), flip(90), flip(93)]
+    assert len(_close(found, 120)) == 120          # their closure does not close
+    G = _passing_group(found, test, 0.5)
+    assert len(G) == 4 and np.array_equal(G[0], np.eye(3))
+    assert _closed(G) < 1e-9 and np.all(test(G) == 0.0)
+    assert np.abs(G[:, None] - d2[None]).max(axis=(2, 3)).min(axis=1).max() < 1e-9
+
+
+def test_a_mapped_lemon_has_a_group_of_symmetries():
+    """A map of the lemon from 100 touches is a lumpy spheroid that passes dozens of
+    half-turns within the tolerance (104 rotations, not a group, before this was bounded):
+    its symmetries must be a group, every element a symmetry on fresh samples."""
+    from touchloc.data import load_object
+    from touchloc.mapping import explore
+    from touchloc.planners import SimulatedWorld
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        obj = load_object("lemon")
+        # the mapping benchmark's second lemon (bench_mapping.trial, seed 1)
+        rng = np.random.default_rng(1001)
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi)).as_matrix()
+        T[:3, 3] = rng.uniform(-0.02, 0.02, 3)
+        lo, hi = MeshObject(obj.mesh.copy().apply_transform(T), check_units=False).bounds
+        world = SimulatedWorld(obj, T, noise_pos=0.001, noise_nor=np.deg2rad(5.0), rng=1)
+        run = explore(world, (lo - 0.02, hi + 0.02), 100, rng=1, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0))
+        mapped = run.map.to_mesh()
+    sym = mapped.symmetries()
+    assert not sym.continuous and 1 <= len(sym.rotations) < 24
+    assert _closed(sym.rotations) < 1e-6
+    for R in sym.rotations[1:]:
+        assert _moved_distance(mapped, sym, R) <= 1.5 * sym.tol
+
+
 def test_symmetric_pose_error_ignores_symmetric_turns_only(meshes):
     rng = np.random.default_rng(0)
     T = np.eye(4)

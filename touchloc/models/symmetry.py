@@ -431,8 +431,30 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTIL
             # keep local minima only (neighbouring angles pass around the same flip)
             if d[i] <= d[(i - 1) % len(d)] and d[i] <= d[(i + 1) % len(d)]:
                 found.append(cand[i])
-    group = _close(found)
-    # keep only the composed elements that pass themselves (closure of near-symmetries)
-    keep = test(group) <= tol
-    keep[0] = True
-    return Symmetry(group[keep], c, None, False, False, tol, quantile)
+    group = _close(found, _CLOSE_LIMIT)
+    if len(group) >= _CLOSE_LIMIT or (len(group) > 1 and not np.all(test(group[1:]) <= tol)):
+        # near-symmetries that do not compose into a group that passes (a mapped, slightly
+        # lumpy shape passes dozens of half-turns whose products do not)
+        group = _passing_group(found, test, tol)
+    return Symmetry(group, c, None, False, False, tol, quantile)
+
+
+_CLOSE_LIMIT = 120     # a closure this large is taken for one that does not close
+_MAX_GENERATORS = 24   # candidates _passing_group tries, best first
+
+
+def _passing_group(found, test, tol):
+    """A group of rotations that all pass ``test`` within ``tol``, generated greedily: the
+    candidates in ``found`` are tried best first, and each is kept if the closure of the
+    kept ones with it is finite (under the limit) and passes in every element."""
+    found = np.asarray(found)
+    group, gens = np.eye(3)[None], []
+    for i in np.argsort(test(found), kind="stable")[:_MAX_GENERATORS]:
+        R = found[i]
+        if np.abs(group - R).max(axis=(1, 2)).min() < 1e-6:
+            continue   # already in the group
+        trial = _close(gens + [R], _CLOSE_LIMIT)
+        if len(trial) < _CLOSE_LIMIT and np.all(test(trial[1:]) <= tol):
+            gens.append(R)
+            group = trial
+    return group
