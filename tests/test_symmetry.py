@@ -119,6 +119,31 @@ def test_prisms_have_their_dihedral_groups():
     assert angles[1] == pytest.approx(np.pi / 3, abs=1e-6)
 
 
+def test_regular_solids_have_their_rotation_groups():
+    """Equal second moments without a sphere's symmetry leave the principal axes arbitrary:
+    the turns must come from axes the surface shows (a cube's 24 rotations, not the 4
+    half-turns about three arbitrary axes)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=5).as_matrix()     # no axis along x, y or z
+    tetra = trimesh.Trimesh(np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]) * 0.02,
+                            [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    octa = trimesh.Trimesh(np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]) * 0.03,
+                           [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    solids = {"cube": (trimesh.creation.box((0.05, 0.05, 0.05)), 24), "tetrahedron": (tetra, 12),
+              "octahedron": (octa, 24), "icosahedron": (trimesh.creation.icosahedron().apply_scale(0.03), 60)}
+    for name, (m, order) in solids.items():
+        m = m.copy().apply_transform(T)
+        m.fix_normals()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            obj = MeshObject(m, name=name, check_units=False)
+        sym = obj.symmetries()
+        assert not sym.sphere and len(sym.rotations) == order, name
+        assert _closed(sym.rotations) < 1e-6, name
+        for R in sym.rotations[1:]:
+            assert _moved_distance(obj, sym, R) <= 1e-6, name
+
+
 def test_closure_of_an_exact_group_is_the_group_and_of_near_symmetries_stops_at_its_limit():
     from touchloc.models.symmetry import _close
 

@@ -257,6 +257,47 @@ def _axis_rot(axis, angles):
     return Rotation.from_rotvec(np.outer(np.atleast_1d(angles), axis)).as_matrix()
 
 
+# a direction no face, vertex or axis of a regular shape lies across: the sign that makes
+# an axis' direction positive along it is its one representative
+_GENERIC = np.array([0.5773, 0.5774, 0.5775])
+
+
+def _shape_axes(obj, c, n_axes: int = 24):
+    """Candidate axes of symmetry through ``c`` for a shape whose second moments are all
+    equal: the directions (up to sign, merged within 3 degrees) of the faces' normals
+    weighted by area, of the vertices farthest from ``c``, and of the faces' centres,
+    the ``n_axes`` of each kind that carry the most area or lie farthest out."""
+    tri = obj.triangles
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = 0.5 * np.linalg.norm(nrm, axis=1)
+    kinds = []
+    ok = area > 0
+    kinds.append((nrm[ok] / (2.0 * area[ok, None]), area[ok]))
+    v = obj.mesh.vertices - c
+    rv = np.linalg.norm(v, axis=1)
+    kinds.append((v[rv > 0] / rv[rv > 0, None], rv[rv > 0]))
+    fc = tri.mean(axis=1) - c
+    rf = np.linalg.norm(fc, axis=1)
+    kinds.append((fc[rf > 0] / rf[rf > 0, None], area[rf > 0] * rf[rf > 0]))
+    out = []
+    cos_merge = np.cos(np.radians(3.0))
+    for d, w in kinds:
+        d = np.where((d @ _GENERIC < 0)[:, None], -d, d)   # one sign per axis
+        chosen, weight = [], []
+        for i in np.argsort(-w, kind="stable"):
+            if chosen and np.max(np.abs(np.asarray(chosen) @ d[i])) >= cos_merge:
+                k = int(np.argmax(np.abs(np.asarray(chosen) @ d[i])))
+                weight[k] += w[i]
+                continue
+            chosen.append(d[i])
+            weight.append(w[i])
+            if len(chosen) >= 4 * n_axes:
+                break
+        order = np.argsort(-np.asarray(weight), kind="stable")[:n_axes]
+        out.extend(np.asarray(chosen)[order])
+    return out
+
+
 def _perpendicular(axis):
     u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
     u /= np.linalg.norm(u)
@@ -421,6 +462,14 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTIL
             R = _axis_rot(vec[:, i], 2 * np.pi / n)
             if test(R)[0] <= tol:
                 found.append(R[0])
+    if rel(0, 2) < eq_tol:
+        # equal moments without a sphere's symmetry (a cube, a regular tetrahedron or
+        # octahedron): the principal axes are arbitrary, and the turns are about axes
+        # the surface itself shows, through its faces' normals and its vertices
+        # (the rotation groups of the regular solids turn by 2 pi / n, n <= 5, about them)
+        for a in _shape_axes(obj, c):
+            R = _axis_rot(a, 2 * np.pi / np.arange(2, min(max_order, 6) + 1))
+            found.extend(R[test(R) <= tol])
     if special is not None:
         # half-turns about axes perpendicular to the special one, at 1 degree steps
         u, v = _perpendicular(special)
