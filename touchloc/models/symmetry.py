@@ -260,6 +260,7 @@ def _axis_rot(axis, angles):
 # a direction no face, vertex or axis of a regular shape lies across: the sign that makes
 # an axis' direction positive along it is its one representative
 _GENERIC = np.array([0.5773, 0.5774, 0.5775])
+_AXIS_SCAN = 4096   # directions of each kind looked at, largest first (a dense mesh's are many)
 
 
 def _shape_axes(obj, c, n_axes: int = 24):
@@ -284,7 +285,7 @@ def _shape_axes(obj, c, n_axes: int = 24):
     for d, w in kinds:
         d = np.where((d @ _GENERIC < 0)[:, None], -d, d)   # one sign per axis
         chosen, weight = [], []
-        for i in np.argsort(-w, kind="stable"):
+        for i in np.argsort(-w, kind="stable")[:_AXIS_SCAN]:
             if chosen and np.max(np.abs(np.asarray(chosen) @ d[i])) >= cos_merge:
                 k = int(np.argmax(np.abs(np.asarray(chosen) @ d[i])))
                 weight[k] += w[i]
