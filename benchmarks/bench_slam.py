@@ -415,8 +415,8 @@ def _timing(quick):
     base = _timing_child(quick, TIMING_BASELINE)
     now = _timing_child(quick)
     rows = []
-    for fingers, (counts, cpu, n_smooth, *_) in now.items():
-        counts, cpu = np.array(counts), np.array(cpu)
+    for fingers, (counts, cpu, n_smooth, _, plan) in now.items():
+        counts, cpu, plan = np.array(counts), np.array(cpu), np.array(plan)
         b = None
         if base is not None and fingers in base:
             # the baseline's own run of the same world (its explorer picks other touches), binned alike
@@ -435,6 +435,7 @@ def _timing(quick):
                         f"{np.mean(b[bsel]) / np.mean(cpu[sel]):.2f}x"]
             else:
                 row += ["", ""]
+            row.append(f"{np.median(plan[sel]) * 1e3:.0f}")
             row.append(f"{n_smooth} runs" if first else "")
             first = False
             rows.append(row)
@@ -444,9 +445,11 @@ def _timing(quick):
             f"({TIMING_BASELINE}, before the pose covariance tracked from the contacts' geometry) ran the same "
             "world the same way in the same run, just before; its explorer picks other touches, so its updates "
             "are binned by the contacts in its own map, and the ratio is its mean time over this tree's in each "
-            "row.\n\n"
+            "row. 'Planning' is the explorer's choice of each action before its update (wall clock, this tree): "
+            "an action costs the two together.\n\n"
             + table(["fingers", "contacts in the map", "updates", "median (ms)", "p95 (ms)", "max (ms)", "mean (ms)",
-                     f"{TIMING_BASELINE} median / mean (ms)", "speed-up", "smoother runs in the whole run"], rows))
+                     f"{TIMING_BASELINE} median / mean (ms)", "speed-up", "planning median (ms)",
+                     "smoother runs in the whole run"], rows))
 
 
 def _blas_threads(quick):
