@@ -321,7 +321,11 @@ class _Tester:
         return np.quantile(d.reshape(len(R), -1), self.quantile, axis=1)
 
 
-def _close(rots, limit=120):
+_CLOSE_LIMIT = 120     # a closure this large is taken for one that does not close
+_MAX_GENERATORS = 24   # candidates _passing_group tries, best first
+
+
+def _close(rots, limit=_CLOSE_LIMIT):
     """Closure of a set of rotations under composition (deduplicated), identity first; at
     most ``limit`` rotations.
 
@@ -481,7 +485,7 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTIL
             # keep local minima only (neighbouring angles pass around the same flip)
             if d[i] <= d[(i - 1) % len(d)] and d[i] <= d[(i + 1) % len(d)]:
                 found.append(cand[i])
-    group = _close(found, _CLOSE_LIMIT)
+    group = _close(found)
     if len(group) >= _CLOSE_LIMIT or (len(group) > 1 and not np.all(test(group[1:]) <= tol)):
         # near-symmetries that do not compose into a group that passes (a mapped, slightly
         # lumpy shape passes dozens of half-turns whose products do not)
@@ -489,8 +493,6 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTIL
     return Symmetry(group, c, None, False, False, tol, quantile)
 
 
-_CLOSE_LIMIT = 120     # a closure this large is taken for one that does not close
-_MAX_GENERATORS = 24   # candidates _passing_group tries, best first
 
 
 def _passing_group(found, test, tol):
@@ -503,7 +505,7 @@ def _passing_group(found, test, tol):
         R = found[i]
         if np.abs(group - R).max(axis=(1, 2)).min() < 1e-6:
             continue   # already in the group
-        trial = _close(gens + [R], _CLOSE_LIMIT)
+        trial = _close(gens + [R])
         if len(trial) < _CLOSE_LIMIT and np.all(test(trial[1:]) <= tol):
             gens.append(R)
             group = trial
