@@ -286,10 +286,12 @@ def _shape_axes(obj, c, n_axes: int = 24):
         d = np.where((d @ _GENERIC < 0)[:, None], -d, d)   # one sign per axis
         chosen, weight = [], []
         for i in np.argsort(-w, kind="stable")[:_AXIS_SCAN]:
-            if chosen and np.max(np.abs(np.asarray(chosen) @ d[i])) >= cos_merge:
-                k = int(np.argmax(np.abs(np.asarray(chosen) @ d[i])))
-                weight[k] += w[i]
-                continue
+            if chosen:
+                cos = np.abs(np.asarray(chosen) @ d[i])
+                k = int(np.argmax(cos))
+                if cos[k] >= cos_merge:
+                    weight[k] += w[i]
+                    continue
             chosen.append(d[i])
             weight.append(w[i])
             if len(chosen) >= 4 * n_axes:
@@ -468,8 +470,8 @@ def find_symmetries(obj, tol: float | None = None, *, quantile: float = _QUANTIL
             if test(R)[0] <= tol:
                 found.append(R[0])
     if rel(0, 2) < eq_tol:
-        # equal moments without a sphere's symmetry (a cube, a regular tetrahedron or
-        # octahedron): the principal axes are arbitrary, and the turns are about axes
+        # equal moments without a sphere's symmetry (a cube, a regular tetrahedron,
+        # octahedron or icosahedron): the principal axes are arbitrary, and the turns are about axes
         # the surface itself shows, through its faces' normals and its vertices
         # (the rotation groups of the regular solids turn by 2 pi / n, n <= 5, about them)
         for a in _shape_axes(obj, c):
