@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from touchloc import _util
-from touchloc._validate import (as_count, as_path, as_points, as_pose, as_poses, as_positive_float,
+from touchloc._validate import (as_count, as_motion, as_path, as_points, as_pose, as_poses, as_positive_float,
                                 as_probability, as_timeout)
 from touchloc.errors import TouchlocError, ValidationError
 
@@ -102,6 +102,19 @@ def test_points():
 
 def test_util_reexports_one_implementation():
     assert _util.as_points is as_points and _util.as_poses is as_poses
+
+
+@pytest.mark.parametrize("bad", [None, 0.1, (0.1,), (0.1, 0.2, 0.3), ("a", 0.1), (np.nan, 0.1), (0.1, np.inf),
+                                 (-0.001, 0.1), (0.1, -0.1), (1.0, 0.1), (0.1, math.pi)])
+def test_motion_rejects(bad):
+    with pytest.raises(ValidationError, match="push"):
+        as_motion(bad, "push")
+
+
+def test_motion_accepts_numbers_and_arrays():
+    assert as_motion((0, 0), "push") == (0.0, 0.0)
+    a, b = as_motion(np.array([0.002, np.deg2rad(2.0)]), "push")
+    assert (a, b) == (0.002, float(np.deg2rad(2.0))) and type(a) is float
 
 
 def test_path(tmp_path):

@@ -30,6 +30,7 @@ __all__ = [
     "as_points",
     "as_pose",
     "as_poses",
+    "as_motion",
     "as_path",
     "as_bool",
     "as_name",
@@ -254,6 +255,18 @@ def as_pose(x, name: str = "pose", *, tol: float = ORTHO_TOL) -> np.ndarray:
     if a.shape != (4, 4):
         raise ValidationError(f"{name} must be a (4, 4) homogeneous matrix, got {a.shape}")
     return as_poses(a, name, tol=tol)[0]
+
+
+def as_motion(x, name: str) -> tuple[float, float]:
+    """A motion's size as (translation (m), rotation (rad)): two finite numbers >= 0, under
+    1 m and pi rad."""
+    try:
+        a, b = (float(v) for v in x)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name} must be (translation (m), rotation (rad)), got {x!r}") from None
+    if not (np.isfinite(a) and np.isfinite(b) and a >= 0 and b >= 0 and a < 1 and b < np.pi):
+        raise ValidationError(f"{name} must be two finite numbers >= 0 (m, rad), got {x!r}")
+    return a, b
 
 
 def as_path(x, name: str = "path", *, must_exist: bool = True, kind: str = "file") -> Path:

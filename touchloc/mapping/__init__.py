@@ -13,7 +13,8 @@ _NAMES = {
     "explore": ("PLANNERS", "ExplorationRun", "box_pool", "explore", "hand_pool", "lattice_pool", "ray_information"),
     "metrics": ("chamfer_distance", "fscore", "surface_distances"),
     "shape_map": ("ShapeMap",),
-    "slam": ("MovingWorld", "TactileSLAM", "transform_results"),
+    "slam": ("TactileSLAM", "transform_results"),
+    "world": ("MovingWorld",),
     "superquadric": ("Superquadric", "fit_superquadric"),
 }
 

@@ -69,7 +69,8 @@ def run(args) -> int:
     if args.moving == "none":
         world = SimulatedWorld(obj, T, rng=args.seed + 1, **noise)
     else:
-        from .slam import MovingWorld, TactileSLAM
+        from .slam import TactileSLAM
+        from .world import MovingWorld
 
         if args.moving == "push":
             world = MovingWorld(obj, T, push=(0.002, np.deg2rad(2.0)), planar=True, rng=args.seed + 1, **noise)

@@ -64,14 +64,14 @@ from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr
 
 from .._util import as_rng, blas_threads, logsumexp1d
-from .._validate import as_bool, as_float, as_pose
+from .._validate import as_bool, as_float, as_motion, as_pose
 from ..geometry import checked_rotations
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
 from .shape_map import ShapeMap, as_bounds
 
-__all__ = ["TactileSLAM", "MovingWorld", "transform_results"]
+__all__ = ["TactileSLAM", "transform_results"]
 
 
 class OdometryCalibration(NamedTuple):
@@ -205,8 +205,8 @@ class TactileSLAM:
                  learn_odometry_scale: bool = False, odometry_scale: float = 1.0,
                  odometry_scale_sd: float = _SCALE_PRIOR_SD_DEFAULT, initial_pose=None, rng=None, **map_kwargs):
         self.bounds = as_bounds(bounds)
-        self.motion = _pair(motion, "motion")
-        self.odometry_noise = _pair(odometry_noise, "odometry_noise")
+        self.motion = as_motion(motion, "motion")
+        self.odometry_noise = as_motion(odometry_noise, "odometry_noise")
         if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or not 10 <= n_particles <= 100_000:
             raise ValidationError(f"n_particles must be an integer in [10, 100000], got {n_particles!r}")
         self.planar = as_bool(planar, "planar")
@@ -1232,95 +1232,3 @@ def _scaled_turn(D, scale):
     out[:3, :3] = Rs
     out[:3, 3] = c - Rs @ c + (D[:3, 3] - (c - R @ c))   # keep any slide along the axis
     return out
-
-
-def _pair(v, name):
-    try:
-        a, b = (float(x) for x in v)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{name} must be (translation (m), rotation (rad)), got {v!r}") from None
-    if not (np.isfinite(a) and np.isfinite(b) and a >= 0 and b >= 0 and a < 1 and b < np.pi):
-        raise ValidationError(f"{name} must be two finite numbers >= 0 (m, rad), got {v!r}")
-    return a, b
-
-
-class MovingWorld:
-    """A simulated object that moves while it is touched.
-
-    Every action pushes the object: after its touches are measured, the object moves by
-    a random motion (``push`` = translation (m) and rotation (rad) standard deviations,
-    about the object's own origin), which the next action finds. In ``inhand`` mode the
-    hand also turns it by ``step`` rad about ``axis`` (world frame, through the object's
-    origin) before each action, as a hand rotating it between its fingers. The first
-    action therefore meets the object at ``initial_pose`` (or turned once, in hand).
-    ``odometry()`` returns the hand's estimate of the motion since the last action's
-    touches: the commanded turn scaled by ``1 + bias`` (nothing is known of pushes).
-
-    ``trajectory`` holds ``initial_pose`` and then the pose at which each action's
-    touches were made.
-
-    Parameters
-    ----------
-    obj : MeshObject
-    initial_pose : (4, 4) float
-    push : (float, float)
-    planar : bool
-        Pushes move x, y and yaw only (an object sliding on a table).
-    inhand : bool
-    step : float
-        Turn per action in ``inhand`` mode (rad).
-    axis : (3,) float
-    bias : float
-        Relative error of the odometry's turn (0.05 = 5 % too much).
-    noise_pos, noise_nor : float
-        Contact noise, as :class:`touchloc.planners.SimulatedWorld`.
-    rng : None, int or Generator
-    """
-
-    def __init__(self, obj, initial_pose=None, *, push=(0.002, np.deg2rad(2.0)), planar: bool = False,
-                 inhand: bool = False, step: float = np.deg2rad(10.0), axis=(0.0, 0.0, 1.0), bias: float = 0.0,
-                 noise_pos: float = 0.001, noise_nor: float = 0.087, rng=None):
-        from ..models import MeshObject
-
-        if not isinstance(obj, MeshObject):
-            raise ValidationError(f"obj must be a MeshObject, got {type(obj).__name__}")
-        self.obj = obj
-        self.true_pose = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose").copy()
-        self.push = _pair(push, "push")
-        self.planar, self.inhand = as_bool(planar, "planar"), as_bool(inhand, "inhand")
-        self.step = as_float(step, "step", low=-np.pi, high=np.pi)
-        try:
-            a = np.asarray(axis, dtype=float).reshape(3)
-        except (TypeError, ValueError):
-            raise ValidationError(f"axis must be a non-zero 3-vector, got {axis!r}") from None
-        if not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-12:
-            raise ValidationError(f"axis must be a finite non-zero 3-vector, got {axis!r}")
-        self.axis = a / np.linalg.norm(a)
-        self.bias = as_float(bias, "bias", low=-0.9, high=10.0)
-        self.noise_pos = as_float(noise_pos, "noise_pos", low=0.0, high=0.1)
-        self.noise_nor = as_float(noise_nor, "noise_nor", low=0.0, high=10.0)
-        self.rng = as_rng(rng)
-        self.trajectory = [self.true_pose.copy()]
-        self._odo = np.eye(4)
-
-    def odometry(self) -> np.ndarray | None:
-        """The hand's estimate of the last motion (world-frame increment), or None."""
-        return self._odo.copy() if self.inhand else None
-
-    def execute(self, action) -> list:
-        from ..planners.simulate import execute
-
-        T = self.true_pose
-        if self.inhand:
-            R = Rotation.from_rotvec(self.step * self.axis).as_matrix()
-            T = T.copy()
-            T[:3, :3] = R @ T[:3, :3]
-            Ro = Rotation.from_rotvec(self.step * (1 + self.bias) * self.axis).as_matrix()
-            self._odo = np.eye(4)
-            self._odo[:3, :3] = Ro
-            self._odo[:3, 3] = T[:3, 3] - Ro @ T[:3, 3]   # turn about the object's origin
-        self.trajectory.append(T.copy())
-        out = execute(self.obj, T, action, noise_pos=self.noise_pos, noise_nor=self.noise_nor, rng=self.rng)
-        # the touch disturbs the object: the next action finds it moved
-        self.true_pose = _perturb(T[None], self.push[0], self.push[1], self.planar, self.rng)[0]
-        return out
