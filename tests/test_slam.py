@@ -43,6 +43,22 @@ def test_slam_follows_a_pushed_object_where_a_static_map_smears(milk):
     assert len(slam.trajectory) == 31 and run.map is slam.map
 
 
+def test_a_thinned_map_relocates_like_a_refit_and_leaves_out_repeats(milk):
+    push = dict(push=(0.002, np.deg2rad(2.0)), planar=True)
+    slam = TactileSLAM(_box(milk, 0.03), planar=True, sigma_pos=0.001, sigma_nor=0.087, rng=0, thin=0.5)
+    run = explore(MovingWorld(milk, rng=1, **push), _box(milk, 0.06), 40, slam=slam, fingers=3, rng=0)
+    smap = run.map
+    assert smap.thin == 0.5 and 0 < smap.thinned < smap.n_contacts
+    assert len(slam.info["smoothing"]) >= 2                 # relocations ran on the thinned rows
+    # every contact is kept in the record; only the rest are rows of the GPIS (one per gradient axis)
+    assert len(smap.contacts) == smap.n_contacts
+    assert int(np.sum(smap._gp.kind == 0)) == smap.n_contacts - smap.thinned
+    q = np.random.default_rng(0).uniform(*_box(milk, 0.01), (200, 3))
+    before = smap.signed_distance(q)
+    smap.refit()
+    assert np.allclose(smap.signed_distance(q), before, atol=1e-9)
+
+
 def test_odometry_is_used_and_its_bias_corrected(milk):
     kw = dict(push=(0.0, 0.0), inhand=True, step=np.deg2rad(15.0), bias=0.05)
     errs = []

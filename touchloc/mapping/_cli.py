@@ -32,6 +32,9 @@ def register(sub):
                    help="with --moving inhand: the standard deviation of each reported turn's error once scaled "
                         "(deg, default 1.5); an in-hand run ends by printing the value its own turns imply")
     p.add_argument("--fingers", type=int, default=1, help="fingers closing at once per action (default 1)")
+    p.add_argument("--thin", type=float, default=0.0, metavar="K",
+                   help="leave out of the GPIS the contacts it already predicts (deviation below K times the "
+                        "position noise): cheaper long sessions; default 0, every contact (ShapeMap's thin)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", default=None, help="write a PNG of the map beside the true object")
     p.add_argument("--html", default=None, help="write a rotating 3-D HTML view of the map")
@@ -90,7 +93,7 @@ def run(args) -> int:
                 motion.update(learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=0.0)
         # the object frame is the world frame at the start: the truth to compare with is the start
         slam = TactileSLAM(bounds, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
-                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, **motion)
+                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, thin=args.thin, **motion)
         bounds = (bounds[0] - 0.03, bounds[1] + 0.03)
     print(f"{obj}\nhidden in the box {np.round(bounds[0] * 1e3, 1).tolist()} .. {np.round(bounds[1] * 1e3, 1).tolist()} mm; "
           f"{args.touches} touches, planner {args.planner}, map {args.method}")
@@ -111,7 +114,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     kw = {} if slam is not None else dict(method=args.method, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
-                                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3))
+                                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), thin=args.thin)
     res = explore(world, bounds, args.touches, planner=args.planner, rng=args.seed, callback=report, slam=slam,
                   fingers=args.fingers, **kw)
     dt = time.perf_counter() - t0

@@ -413,7 +413,7 @@ class GPIS:
             self._scale = max(1.0, loo, total / count if count else 1.0)
         return self._scale
 
-    def score_prediction(self, X, y, noise) -> None:
+    def score_prediction(self, X, y, noise, *, pred=None) -> None:
         """Record how well the current map predicts value observations about to be added.
 
         Parameters
@@ -423,10 +423,12 @@ class GPIS:
             The values that will be observed there (0 for contacts).
         noise : (k,) float
             Their noise variances.
+        pred : ((k,) float, (k,) float), optional
+            ``mean_std(X, calibrated=False)``, if the caller has it already.
         """
         if self.n == 0 or len(X) == 0:
             return
-        mu, sd = self.mean_std(X, calibrated=False)
+        mu, sd = self.mean_std(X, calibrated=False) if pred is None else pred
         z2 = (np.asarray(y, float) - mu) ** 2 / (sd * sd + np.asarray(noise, float))
         self._preq[0] += float(np.sum(z2))
         self._preq[1] += len(z2)

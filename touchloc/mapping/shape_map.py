@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 
 from .._util import as_points, blas_threads
-from .._validate import as_bool, as_count, as_path
+from .._validate import as_bool, as_count, as_float, as_path
 from ..errors import MappingError, ValidationError
 from .gpis import GPIS, bound_site
 from .occupancy import OccupancyGrid
@@ -101,6 +101,15 @@ class ShapeMap:
         Use the space the probe swept (default True).
     resolution : int
         Occupancy cells along the longest side of the box (default 64).
+    thin : float
+        0 (default): every contact becomes observations of the GPIS. Above 0, a contact the
+        map already predicts is left out of the GPIS: its predictive standard deviation
+        there is below ``thin * sigma_pos``, its mean within two standard deviations (map
+        and sensor) of the surface, and its measured normal within ``2 sigma_nor`` of the
+        map's. It still counts in :attr:`contacts`, the touches and the calibration. A long
+        session then grows the map with the surface it finds, not with the touches that
+        land on surface already mapped: the cost of an update and of planning grows with
+        the map's rows (docs/mapping.md, "Long sessions").
 
     Notes
     -----
@@ -113,7 +122,7 @@ class ShapeMap:
 
     def __init__(self, bounds, *, method: str = "gpis", sigma_pos: float = 0.001, sigma_nor: float = 0.1,
                  lengthscale: float | None = None, signal_std: float | None = None, prior="sphere",
-                 free_space: bool = True, resolution: int = 64):
+                 free_space: bool = True, resolution: int = 64, thin: float = 0.0):
         self.lo, self.hi = as_bounds(bounds)
         if not isinstance(method, str) or method not in METHODS:
             raise ValidationError(f"method must be one of {METHODS}, got {method!r}")
@@ -132,6 +141,8 @@ class ShapeMap:
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or not 8 <= resolution <= 512:
             raise ValidationError(f"resolution must be an integer in [8, 512], got {resolution!r}")
         self.resolution = int(resolution)
+        self.thin = as_float(thin, "thin", low=0.0, high=1e3)
+        self.thinned = 0                 # contacts left out of the GPIS (see thin)
         self._results: list = []
         self._pending: dict = {}         # batch -> rigid move not yet applied to its stored touches
         self.batches: list = []          # number of results in each update() call
@@ -265,6 +276,15 @@ class ShapeMap:
                 self._nrm = np.concatenate([self._nrm, N])
             if K == 0:
                 continue
+            if gp.n:
+                mu, sd = gp.mean_std(P, calibrated=False)
+                gp.score_prediction(P, np.zeros(K), np.full(K, self.sigma_pos**2), pred=(mu, sd))
+                if self.thin > 0.0:
+                    new = ~self._predicted(P, N, mu, sd)
+                    self.thinned += int(K - new.sum())
+                    P, N, K = P[new], None if N is None else N[new], int(new.sum())
+                    if K == 0:
+                        continue
             X = [P]
             kind = [np.full(K, -1)]
             y = [np.zeros(K)]
@@ -274,7 +294,6 @@ class ShapeMap:
                 kind.append(np.tile(np.arange(3), K))
                 y.append(N.reshape(-1))
                 noise.append(np.full(3 * K, self.sigma_nor**2))
-            gp.score_prediction(P, y[0], noise[0])
             gp.add(np.concatenate(X), np.concatenate(kind), np.concatenate(y), np.concatenate(noise))
             self._row_owner = np.concatenate([self._row_owner, np.full(gp.n - len(self._row_owner), batch)])
             if cheap_prior or j == len(blocks) - 1:
@@ -282,6 +301,15 @@ class ShapeMap:
         if self.free_space and seg:
             self._add_free_points(seg, batch)
             self._activate_free()
+
+    def _predicted(self, P, N, mu, sd):
+        """(K,) bool: which contacts the map already predicts (see ``thin``)."""
+        ok = (sd < self.thin * self.sigma_pos) & (np.abs(mu) < 2.0 * np.sqrt(sd * sd + self.sigma_pos**2))
+        if N is not None and ok.any():
+            _, G = self._gp.mean_grad(P[ok])
+            u = G / np.maximum(np.linalg.norm(G, axis=1, keepdims=True), 1e-12)
+            ok[ok] = np.linalg.norm(u - N[ok], axis=1) < 2.0 * self.sigma_nor
+        return ok
 
     def _add_free_points(self, seg, batch):
         """Sample swept paths inside the bounds (skipping the last stretch before a contact)."""
@@ -613,7 +641,7 @@ class ShapeMap:
         settings = dict(method=self.method, sigma_pos=self.sigma_pos, sigma_nor=self.sigma_nor,
                         lengthscale=self.lengthscale, signal_std=self.signal_std,
                         prior=self.prior if isinstance(self.prior, str) else "sphere",
-                        free_space=self.free_space, resolution=self.resolution)
+                        free_space=self.free_space, resolution=self.resolution, thin=self.thin)
         try:
             np.savez_compressed(path, lo=self.lo, hi=self.hi, batches=np.array(self.batches, dtype=np.int64),
                                 settings=json.dumps(settings), **rec)

@@ -175,7 +175,10 @@ class TactileSLAM:
         odometry.)
     rng : None, int or Generator
     **map_kwargs
-        Passed to :class:`ShapeMap` (``method``, ``sigma_pos``, ``sigma_nor``, ...).
+        Passed to :class:`ShapeMap` (``method``, ``sigma_pos``, ``sigma_nor``, ...);
+        ``thin=0.3`` keeps a long session's updates and planning cheaper by leaving out of
+        the map the contacts it already predicts, at a small cost in accuracy (docs/slam.md,
+        "Speed").
 
     Attributes
     ----------
