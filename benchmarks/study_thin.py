@@ -1,6 +1,7 @@
 """Long pushed sessions with and without leaving out the contacts the map already predicts.
 
     python benchmarks/study_thin.py [--actions 200] [--thin 0 0.3 0.5] [--quick]
+    python benchmarks/study_thin.py --static [--thin 0.5]
 
 The SLAM benchmark's pushed world (2 mm / 2 deg per action, no odometry, a three-finger
 hand, ``explore`` with ``TactileSLAM``), run for twice the benchmark's 100 actions with
@@ -10,7 +11,9 @@ until the first contact left out. Development: milk, cereal, bread and mug, seed
 settings were looked at on these); held out: can, lemon and bunny, seeds 7-8, and milk and
 cereal with 2 mm / 10 deg contacts, seeds 7-8. CPU time of each ``TactileSLAM.update`` and of
 the explorer's map queries for its candidates (``_ray_samples``), on two spawned
-single-threaded workers. Prints Markdown tables; nothing is written to docs/
+single-threaded workers. ``--static`` runs the mapping benchmark's static single-probe
+worlds instead (``bench_mapping._setup``: mug, bunny, lemon and cereal, seeds 0-1, 200
+touches of the uncertainty explorer). Prints Markdown tables; nothing is written to docs/
 (docs/benchmarks.md, "Long sessions", quotes it).
 """
 
@@ -96,6 +99,31 @@ def one(spec, actions: int = 200) -> dict:
                 contacts=slam.map.n_contacts)
 
 
+def static(spec) -> dict:
+    """One static single-probe mapping run of the mapping benchmark: accuracy at 100 and 200 touches."""
+    import warnings
+
+    warnings.simplefilter("ignore")
+    import bench_mapping as B
+
+    from touchloc.mapping import chamfer_distance, explore, fscore
+
+    mesh, seed, thin = spec
+    world, bounds, truth, _ = B._setup(B._object(mesh), seed)
+    acc = {}
+
+    def cb(run, step):
+        if step["touch"] in (100, 200):
+            m = run.map.to_mesh()
+            acc[step["touch"]] = (float(chamfer_distance(m, truth, n=5000)), float(fscore(m, truth, 0.005, n=5000)))
+
+    t0 = time.process_time()
+    run = explore(world, bounds, 200, rng=seed, callback=cb, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0), thin=thin)
+    return [mesh, seed, thin, f"{run.map.thinned}/{run.map.n_contacts}", run.map._gp.n,
+            f"{1000 * acc[100][0]:.2f} / {acc[100][1]:.3f}", f"{1000 * acc[200][0]:.2f} / {acc[200][1]:.3f}",
+            f"{time.process_time() - t0:.1f}"]
+
+
 def _one(spec):
     return one(spec[:-1], spec[-1])
 
@@ -142,7 +170,17 @@ def main(argv=None) -> int:
     ap.add_argument("--actions", type=int, default=200)
     ap.add_argument("--thin", type=float, nargs="+", default=[0.0, 0.3, 0.5])
     ap.add_argument("--quick", action="store_true", help="three worlds, 120 actions")
+    ap.add_argument("--static", action="store_true", help="the mapping benchmark's static worlds instead")
     a = ap.parse_args(argv)
+    if a.static:
+        from _common import table
+
+        thins = sorted(set(a.thin) | {0.0})
+        rows = spawn_map(static, [(m, s, t) for m in ("mug", "bunny", "lemon", "cereal") for s in (0, 1)
+                                  for t in thins])
+        print(table(["mesh", "seed", "thin", "left out", "map rows", "Chamfer (mm) / F@5mm at 100 touches",
+                     "at 200 touches", "CPU (s)"], rows))
+        return 0
     actions = 120 if a.quick else a.actions
     thins = sorted(set(a.thin) | {0.0})
     t0 = time.time()
