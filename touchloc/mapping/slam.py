@@ -84,10 +84,6 @@ class OdometryCalibration(NamedTuple):
     updates: int
 
 
-def _as_pose(T, name):
-    return as_pose(T, name)
-
-
 def transform_results(results, T) -> list:
     """TouchResults expressed in another frame: ``T`` (4, 4) maps their frame to the new one."""
     from .shape_map import _check_results
@@ -224,7 +220,7 @@ class TactileSLAM:
                                        high=self._SCALE_RANGE[1])
         self.odometry_scale_sd = as_float(odometry_scale_sd, "odometry_scale_sd", low=0.0, high=0.5)
         self.rng = as_rng(rng)
-        T0 = np.eye(4) if initial_pose is None else _as_pose(initial_pose, "initial_pose")
+        T0 = np.eye(4) if initial_pose is None else as_pose(initial_pose, "initial_pose")
         self.map = ShapeMap(self.bounds, **map_kwargs)
         self.particles = np.repeat(T0[None], int(n_particles), axis=0)
         self.log_w = np.full(int(n_particles), -np.log(n_particles))
@@ -843,7 +839,7 @@ class TactileSLAM:
         D = raw = None
         first = not self._steps
         if odometry is not None:
-            D = raw = _as_pose(odometry, "odometry")
+            D = raw = as_pose(odometry, "odometry")
             if self.learn_odometry_scale or self.odometry_scale != 1.0:
                 D = _scaled_turn(D, self.odometry_scale)
             P = self.particles.copy()
