@@ -637,7 +637,7 @@ def test_map_command_writes_plot_html_mesh_and_map(tmp_path, capsys):
     assert MeshObject.from_file(files["obj"], check_units=False).n_faces > 100
 
 
-def test_map_command_with_a_moving_object(tmp_path):
+def test_map_command_with_a_moving_object(tmp_path, capsys):
     from touchloc.cli import main
 
     png = tmp_path / "s.png"
@@ -645,6 +645,7 @@ def test_map_command_with_a_moving_object(tmp_path):
                  "--thin", "0.3", "--plot", str(png)]) == 0
     assert png.exists() and (tmp_path / "s_trajectory.png").exists()
     assert main(["map", "--mesh", "lemon", "--touches", "6", "--thin", "-1"]) != 0
+    assert "--thin must be" in capsys.readouterr().err
 
 
 def test_map_command_in_hand_takes_a_calibrated_or_learned_odometry_scale(capsys):
