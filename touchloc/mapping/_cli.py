@@ -49,7 +49,9 @@ def run(args) -> int:
 
     from ..models import MeshObject
     from ..planners import SimulatedWorld
+    from .._validate import as_float
     from .explore import explore
+    from .shape_map import _THIN_MAX
     from .metrics import chamfer_distance, fscore
 
     from ..cli import load_mesh
@@ -69,8 +71,8 @@ def run(args) -> int:
         raise ValidationError("--odometry-scale needs --moving inhand (only in-hand turns come with an odometry)")
     if not (np.isfinite(args.odometry_noise) and 0.0 < args.odometry_noise <= 90.0):
         raise ValidationError(f"--odometry-noise must be in (0, 90] deg, got {args.odometry_noise!r}")
-    if not (np.isfinite(args.thin) and 0.0 <= args.thin <= 1e3):
-        raise ValidationError(f"--thin must be in [0, 1000] (times the position noise), got {args.thin!r}")
+    # checked before the run starts, as ShapeMap would check it after the header
+    as_float(args.thin, "--thin", low=0.0, high=_THIN_MAX)
     if args.moving == "none":
         world = SimulatedWorld(obj, T, rng=args.seed + 1, **noise)
     else:

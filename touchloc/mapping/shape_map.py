@@ -141,7 +141,7 @@ class ShapeMap:
         if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or not 8 <= resolution <= 512:
             raise ValidationError(f"resolution must be an integer in [8, 512], got {resolution!r}")
         self.resolution = int(resolution)
-        self.thin = as_float(thin, "thin", low=0.0, high=1e3)
+        self.thin = as_float(thin, "thin", low=0.0, high=_THIN_MAX)
         self.thinned = 0                 # contacts left out of the GPIS (see thin)
         self._results: list = []
         self._pending: dict = {}         # batch -> rigid move not yet applied to its stored touches
@@ -671,6 +671,10 @@ class ShapeMap:
 
 
 # -- helpers -----------------------------------------------------------------------------
+#: largest ``thin`` accepted (times ``sigma_pos``), far beyond any useful value
+_THIN_MAX = 1e3
+
+
 def _positive(name, v, default):
     if v is None:
         return float(default)
