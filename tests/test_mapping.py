@@ -102,6 +102,39 @@ def test_deferred_columns_and_inverse_match_a_refactorisation():
     ref.add(gp.X, gp.kind, gp.y, gp.noise)
     ref.track(gp.Q)
     assert np.allclose(gp._dKi, ref._dKi, rtol=1e-8) and np.allclose(gp._V, ref._V, atol=1e-10)
+    # a relocation that re-adds more rows than the triangular products' threshold
+    from touchloc.mapping.gpis import _TRMM_ROWS
+
+    gp.add(*rows(40))
+    X = gp.X.copy()
+    start = gp.n - (_TRMM_ROWS + 40)
+    X[start:] -= 0.0005
+    gp.relocate(X, gp.y, gp.Q, start=start)
+    ref = GPIS(0.02, 0.01, prior)
+    ref.add(gp.X, gp.kind, gp.y, gp.noise)
+    ref.track(gp.Q)
+    assert np.allclose(gp.L, ref.L, atol=1e-10) and np.allclose(gp._dKi, ref._dKi, rtol=1e-8)
+    assert np.allclose(gp._V, ref._V, atol=1e-10)
+
+
+@pytest.mark.parametrize("k", [5, 127, 128, 300])
+def test_triangular_products_equal_the_general_ones_and_leave_their_inputs(k):
+    from touchloc.mapping.gpis import _lower_times, _times_lower
+
+    rng = np.random.default_rng(k)
+    big = rng.normal(size=(k + 7, 260))
+    B = big[3:3 + k, 5:205]                      # a view, not contiguous
+    A = np.tril(rng.normal(size=(200, 200)))
+    Ak = np.tril(rng.normal(size=(k, k)))
+    Ck = rng.normal(size=(k, 200))
+    before = big.copy()
+    assert np.allclose(_times_lower(B, A), B @ A, rtol=1e-12, atol=1e-12)
+    assert np.allclose(_lower_times(Ak, B), Ak @ B, rtol=1e-12, atol=1e-12)
+    assert np.allclose(_times_lower(np.ascontiguousarray(B), A), B @ A, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(big, before)
+    C0 = Ck.copy()                               # a contiguous input is not overwritten either
+    _lower_times(Ak, Ck)
+    assert np.array_equal(Ck, C0)
 
 
 def _batches_and_map(obj, free_space=True, k=4):
