@@ -80,7 +80,8 @@ def main(argv=None) -> int:
     print(f"{len(res)} localisations in {time.time() - t0:.0f} s wall; load average {os.getloadavg()[0]:.1f} "
           f"on {os.cpu_count()} cores\n")
     cov = " / truth in 90 % region" if a.coverage else ""
-    print("| mesh | contacts | " + " | ".join(f"cap {c}: median CPU s / ADD-S < 5 mm{cov}" for c in a.caps)
+    print("| mesh | contacts | " + " | ".join(f"cap {c}: median CPU s / ADD-S < 5 mm{cov} / median ADD-S mm"
+                                             for c in a.caps)
           + " | time ratio (first cap / each other) |")
     print("|---|---|" + "---|" * len(a.caps) + "---|")
     for m in a.meshes + ["all"]:
@@ -93,6 +94,7 @@ def main(argv=None) -> int:
                 cell = f"{np.median(times[cap]):.2f} / {ok}/{len(r)}"
                 if a.coverage:
                     cell += f" / {sum(x['level'] < 0.9 for x in r)}/{len(r)}"
+                cell += f" / {np.median([x['adds'] for x in r]) * 1e3:.2f}"
                 cells.append(cell)
             first = a.caps[0]
             ratio = ", ".join(f"{np.median(times[first] / times[c]):.2f}x" for c in a.caps[1:])
