@@ -71,9 +71,9 @@ class ScalingSeries:
         3000 by default: at 5 contacts the cap binds for about half of the scales, and
         most of the particles it lets through are pruned at once. On 126 held-out trials
         per contact count 3000 localised as often as 6000 (the earlier default; 116 at 5
-        contacts, all at 10) in 0.56x / 0.78x the time at 5 / 10 contacts, with the truth
-        in the 90 % credible region as often (89 % and 90 % of 84 trials, against 92 % and
-        83 %); 20000, before, took twice the time of 6000 for no more
+        contacts, all at 10) in 0.59x / 0.82x the time at 5 / 10 contacts, with the truth
+        in the 90 % credible region as often (76 and 73 of 84 trials, against 77 and 70)
+        and the same median ADD-S; 20000, before, took twice the time of 6000 for no more
         (benchmarks/study_particle_cap.py; docs/benchmarks.md, "Scaling Series' particle
         cap"). At 30 contacts it seldom binds.
     max_draws : int, optional
