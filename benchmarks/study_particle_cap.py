@@ -51,7 +51,8 @@ def _one(job):
     b = ScalingSeries(m, rng=seed, progress=False, **kw).localize(c, cube)
     cpu = time.process_time() - c0
     level = float(hpd_level(b, true, m.obj, rng=seed)) if coverage else float("nan")
-    return dict(mesh=mesh, seed=seed, k=k, cap=job[3], cpu=cpu, adds=float(add_s(m.obj, b.map_pose(), true)), level=level)
+    return dict(mesh=mesh, seed=seed, k=k, cap=job[3], cpu=cpu, adds=float(add_s(m.obj, b.map_pose(), true)),
+                level=level)
 
 
 _models: dict = {}

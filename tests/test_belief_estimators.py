@@ -322,5 +322,6 @@ def test_scaling_series_caps_its_draws_apart_from_its_particles(objects):
     # the budget binds: with 40 draws a scale, no scale holds more than 40 particles
     region = PoseRegion.planar((0.0, 0.0), 0.05, z=0.0).with_rho(objects["mug"].radius)
     p, n, _ = objects["mug"].sample_surface(6, rng=np.random.default_rng(5))
-    steps = list(ScalingSeries(model, rng=0, progress=False, n_initial=40, max_draws=40).iterate(Contacts(p, n), region))
+    series = ScalingSeries(model, rng=0, progress=False, n_initial=40, max_draws=40)
+    steps = list(series.iterate(Contacts(p, n), region))
     assert max(s.n_particles for s in steps[1:]) <= 40
