@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import baseline_tree, table  # noqa: E402
-from bench_speed import ROOT, _Worker  # noqa: E402
+from bench_speed import BALL, ROOT, _Worker, _ball_mesh  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -31,7 +31,8 @@ def main(argv=None) -> int:
     ap.add_argument("rev", help="the commit to compare with (e.g. HEAD for the working tree's changes)")
     ap.add_argument("--trials", type=int, default=6)
     ap.add_argument("--contacts", default="10,30")
-    ap.add_argument("--meshes", default="mug,milk,can,cereal")
+    ap.add_argument("--meshes", default="mug,milk,can,cereal",
+                    help=f"bundled meshes, or {BALL!r} for the speed benchmark's near-spherical one")
     ap.add_argument("--threads", type=int, default=0, help="numba threads per worker (0: numba's default)")
     a = ap.parse_args(argv)
     ks = [int(k) for k in a.contacts.split(",")]
@@ -44,6 +45,7 @@ def main(argv=None) -> int:
         if base_path is None:
             print(f"no commit {a.rev!r} in this repository", file=sys.stderr)
             return 2
+        ball = _ball_mesh(Path(tmpd) / "ball.obj") if BALL in meshes else None
         cur, base = _Worker(ROOT, threads), _Worker(base_path, threads)
         try:
             for mesh in meshes:
@@ -52,8 +54,9 @@ def main(argv=None) -> int:
                     for s in range(a.trials):
                         seed = 5000 + 100 * k + s
                         first, second = (cur, base) if s % 2 == 0 else (base, cur)
-                        r1 = first.ask(mesh=mesh, k=k, seed=seed)
-                        r2 = second.ask(mesh=mesh, k=k, seed=seed)
+                        name = ball if mesh == BALL else mesh
+                        r1 = first.ask(mesh=name, k=k, seed=seed)
+                        r2 = second.ask(mesh=name, k=k, seed=seed)
                         rc, rb = (r1, r2) if first is cur else (r2, r1)
                         tc.append(rc["time"])
                         tb.append(rb["time"])

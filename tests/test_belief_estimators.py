@@ -325,3 +325,28 @@ def test_scaling_series_caps_its_draws_apart_from_its_particles(objects):
     series = ScalingSeries(model, rng=0, progress=False, n_initial=40, max_draws=40)
     steps = list(series.iterate(Contacts(p, n), region))
     assert max(s.n_particles for s in steps[1:]) <= 40
+
+
+@pytest.mark.parametrize("method", ["auto", "exact"])
+def test_scaling_series_uses_one_likelihood_method_per_run(box, monkeypatch, method):
+    """``auto`` is resolved once per run: the first scale builds the grid, so the small
+    batches of the last scales use it too (with ``exact`` nothing uses it)."""
+    import touchloc.models.proximity as proximity
+
+    used = []
+    real = proximity.K.pose_costs
+
+    def spy(*args, grid=None, **kw):
+        used.append((len(args[1]), grid is not None))
+        return real(*args, grid=grid, **kw)
+
+    monkeypatch.setattr(proximity.K, "pose_costs", spy)
+    region = PoseRegion.box((0, 0, 0), 0.05, "full")
+    true = region.sample(1, rng=3)[0]
+    contacts = face_contacts(box, true, noise=0.001, rng=4)
+    b = ScalingSeries(ProximityModel(box, 0.002, 0.1, method=method), rng=0).localize(contacts, region)
+    assert add_s(box, b.map_pose(), true) < 0.003
+    # the run makes batches both above and below auto's per-call threshold
+    pairs = [n * len(contacts) for n, _ in used]
+    assert min(pairs) < proximity.AUTO_FAST_PAIRS <= max(pairs)
+    assert {g for _, g in used} == {method == "auto"}

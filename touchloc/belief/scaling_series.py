@@ -380,9 +380,7 @@ class ScalingSeries:
         if not _plain_proximity(model):
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
-        method = model.method
-        if method == "auto":  # as one call over every pair would choose
-            method = "fast" if N * K >= AUTO_FAST_PAIRS else "exact"
+        method = self._method(model, K)
         costs = model._budget_costs
         if not prune or self.prune != "threshold" or N < 64:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
@@ -397,6 +395,18 @@ class ScalingSeries:
         limit += 1e-9 * (1.0 + limit)
         cost, _ = costs(X, contacts, method, budget=np.full(N, limit), lower=lower)
         return finite_loglik(-0.5 * cost.sum(axis=1) / tau)
+
+    def _method(self, model, K: int) -> str:
+        """The likelihood method of every call of a run: ``auto`` resolved once, as one
+        call over the largest batch the run may score would choose it (a scale of
+        ``max_particles`` or the first cover, times K contacts). The first scale builds the
+        model's grid, so the run's small batches (the last scales of a narrow belief, a
+        symmetric object's few representatives) use it too; on the tree they cost 5-20
+        times as much per pair (docs/benchmarks.md, "Localisation speed")."""
+        method = model.method
+        if method == "auto":
+            method = "fast" if max(self.n_initial, self.max_particles) * K >= AUTO_FAST_PAIRS else "exact"
+        return method
 
     def _prune(self, poses, log_w):
         """Drop low-probability regions: "resample" keeps the distinct particles of a
@@ -424,21 +434,20 @@ class ScalingSeries:
         new_above = None
         if _plain_proximity(model):
             # the moves' proposals are this estimator's own rigid poses: no re-validation
+            method = self._method(model, len(contacts))
+
             def new(Q):
-                return finite_loglik(-0.5 * model._contact_costs(Q, contacts).sum(axis=1))
+                return finite_loglik(-0.5 * model._contact_costs(Q, contacts, method).sum(axis=1))
 
             # a cover smaller than the sample is drawn with repeats: each distinct pose is
-            # scored once, by the method a pass over the whole sample would use
-            method = model.method
-            if method == "auto":
-                method = "fast" if len(P) * len(contacts) >= AUTO_FAST_PAIRS else "exact"
+            # scored once
             u, back = np.unique(idx, return_inverse=True)
             l_first = finite_loglik(-0.5 * model._contact_costs(X[u], contacts, method).sum(axis=1))[back]
 
             def new_above(Q, t):
                 # log-likelihood -cost / 2 above t: a cost below -2 t, so a pose stops once its
                 # costs reach that, and is then sure to be rejected (-inf)
-                cost, done = model._budget_costs(Q, contacts, None, budget=np.clip(-2.0 * t, 0.0, np.inf))
+                cost, done = model._budget_costs(Q, contacts, method, budget=np.clip(-2.0 * t, 0.0, np.inf))
                 out = np.full(len(Q), -np.inf)
                 if done.any():
                     out[done] = finite_loglik(-0.5 * cost[done].sum(axis=1))

@@ -22,7 +22,9 @@ METHODS = ("exact", "fast", "bruteforce", "auto")
 #: pose-contact pairs. One such call does not pay for the grid's one-off build (1-20 s on
 #: the bundled meshes, then kept on disk), but an estimator makes tens of them: a Scaling
 #: Series posterior stage is 500 poses x K contacts per pass, a 2000-particle filter's
-#: update 2000 x K. Smaller calls (a few poses) stay exact and build nothing.
+#: update 2000 x K. Smaller calls (a few poses) stay exact and build nothing. Scaling
+#: Series resolves ``auto`` once per run by its largest batch, so its small late batches
+#: use the grid its first scale built.
 AUTO_FAST_PAIRS = 2_000
 
 #: The fast grid's coarser levels: (reach beyond the mesh bounds in largest extents, cell
