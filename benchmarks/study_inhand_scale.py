@@ -52,9 +52,13 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
              "calibrated"))
 
 
-def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True):
+def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
-    error per action in degrees, median error per turn of 24 actions)."""
+    error per action in degrees, median error per turn of 24 actions).
+
+    ``record``, a list: each update appends a dict of its world contact points (``P``,
+    (k, 3)), the odometry's turn about z (``turn``, rad), the true pose and the pose the
+    estimator ends the update at (``truth``, ``est``)."""
     import contextlib
     import io
     import warnings
@@ -78,6 +82,18 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=T
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
                        motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
+    if record is not None:
+        update = slam.update
+
+        def recorded(results, odometry=None):
+            out = update(results, odometry=odometry)
+            pts = [r.contact.points for r in results if r.hit]
+            turn = 0.0 if odometry is None else float(Rotation.from_matrix(np.asarray(odometry)[:3, :3]).as_rotvec()[2])
+            record.append(dict(P=np.vstack(pts) if pts else np.zeros((0, 3)), turn=turn,
+                               truth=world.trajectory[-1].copy(), est=slam.pose.copy()))
+            return out
+
+        slam.update = recorded
     with contextlib.redirect_stderr(io.StringIO()):
         run = explore(world, (lo - 0.06, hi + 0.06), 96, slam=slam, fingers=3, rng=seed)
     ang = np.array([float(np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()))

@@ -69,6 +69,7 @@ from ..geometry import checked_rotations
 from ..errors import ValidationError
 from ..models import Contacts
 from ..planners import GuardedTouch, TouchResult
+from ._feature_turn import FeatureTurn, wrap
 from .shape_map import ShapeMap, as_bounds
 
 __all__ = ["TactileSLAM", "transform_results"]
@@ -251,6 +252,13 @@ class TactileSLAM:
         self._turn_points = None
         self._anchor = None
         self._feature_fit = None
+        # the turn from one feature's angle about the axis (a mug's handle; _feature_turn),
+        # on the in-hand path with the scale learned
+        self._feature_turn = (FeatureTurn(self.odometry_scale, self.odometry_scale_sd, turn_sd=self.odometry_noise[1])
+                              if self._FEATURE_TURN and self.learn_odometry_scale and self.odometry_scale_sd > 0.0
+                              else None)
+        self._turn_axis = None
+        self._turn_steps: list = []   # the step of each of the feature filter's steps
 
     @property
     def pose(self) -> np.ndarray:
@@ -462,6 +470,9 @@ class TactileSLAM:
     _TURN_BACKFILL = True
     _TURN_REF = True
     _SMOOTH_FIX_TURNS = True
+    #: the in-hand turn from the feature's angle (_feature_turn.FeatureTurn) once the feature is
+    #: seen, instead of the map's corrections and the scale's updates from them
+    _FEATURE_TURN = True
 
     @staticmethod
     def _twists(P, T0):
@@ -766,6 +777,64 @@ class TactileSLAM:
             return None
         return float(g[i])
 
+    def _feature_turn_step(self, raw, T, c, aware: bool):
+        """The turn of this step from the feature's angle: ``(pose, whether it was set)``.
+
+        The filter (:class:`~touchloc.mapping._feature_turn.FeatureTurn`) turns with every
+        reported turn and takes this step's contacts; once it has seen the feature, and
+        while the in-hand path runs (``aware``: the object, as touched so far, is a body of
+        revolution about the odometry's axis), the pose and the particles are turned about
+        the axis onto its turn, and the odometry's scale is its scale. The turn is counted
+        from the first pose, about the first odometry's axis.
+        """
+        ft = self._feature_turn
+        w = checked_rotations(raw[:3, :3]).as_rotvec()
+        if self._turn_axis is None:
+            if float(np.linalg.norm(w)) < 1e-9:
+                return T, False
+            self._turn_axis = w / np.linalg.norm(w)
+        a = self._turn_axis
+        ft.predict(float(w @ a))
+        # the axis's point: where the reported turn leaves the world fixed
+        q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
+        self._turn_steps.append(len(self._steps))
+        if c is not None:
+            ft.update(c.points, q, a)
+        if not (aware and ft.started):
+            return T, False
+        R0 = self.trajectory[0][:3, :3]
+
+        def about_axis(c, p):
+            M = np.eye(4)
+            M[:3, :3] = Rotation.from_rotvec(c * a).as_matrix()
+            M[:3, 3] = p - M[:3, :3] @ p
+            return M
+
+        def turn_of(Tj):
+            return float(checked_rotations(Tj[:3, :3] @ R0.T).as_rotvec() @ a)
+
+        corr = float(wrap(ft.turn - turn_of(T)))
+        M = about_axis(corr, q)
+        self.particles = np.einsum("ij,njk->nik", M, self.particles)
+        lo, hi = self._SCALE_RANGE
+        self.odometry_scale = float(np.clip(ft.scale, lo, hi))
+        self.info.setdefault("feature_turn", []).append((len(self._steps), float(np.degrees(corr)), ft.scale, ft.used))
+        # the earlier poses onto the smoothed turns (each about the axis through its own
+        # origin), their touches moving with them in the map, once some pose is 1 deg off
+        th = ft.smoothed()[:-1]
+        past = [(j, float(wrap(t - turn_of(self.trajectory[j + 1])))) for j, t in zip(self._turn_steps[:-1], th)]
+        if past and max(abs(d) for _, d in past) >= self._REANCHOR_MIN:
+            moves = [None] * len(self.map.batches)
+            for j, d in past:
+                old = self.trajectory[j + 1]
+                new = about_axis(d, old[:3, 3]) @ old
+                self.trajectory[j + 1] = new
+                if self._steps[j]["batch"] is not None:
+                    moves[self._steps[j]["batch"]] = np.linalg.inv(new) @ old
+            if any(m is not None for m in moves):
+                self.map.relocate(moves, tol=0.1 * self.map.sigma_pos)
+        return M @ T, True
+
     def _backfill_turn(self, D, T, since):
         """Spread a turn's correction over the steps that did not show the turn.
 
@@ -862,6 +931,7 @@ class TactileSLAM:
                 P = self._inflate(P)
         self._turn_shown = None
         self._turn_draw = None
+        got = None
         if self.map.n_contacts > 0:
             # the turn estimated apart is how a biased odometry's turns are learned: with the
             # scale fixed (the odometry trusted) the turn is scored with the rest of the pose
@@ -897,7 +967,10 @@ class TactileSLAM:
             self._cov, fisher = self._update_cov(self._cov, T, results)
         hits = [r.contact for r in results if r.contact is not None]
         c = Contacts.concatenate(hits) if hits else None
-        shown = D is not None and bool(self._turn_shown)
+        held = False
+        if self._feature_turn is not None and raw is not None:
+            T, held = self._feature_turn_step(raw, T, c, got is not None)
+        shown = D is not None and bool(self._turn_shown) and not held
         if shown and self._FEATURE_SCALE and self.learn_odometry_scale and self.odometry_scale_sd > 0.0:
             fit = self._feature_scale(raw, T, c)
             if fit is not None:
@@ -930,7 +1003,7 @@ class TactileSLAM:
             self.map.update(keep)
         self._steps.append(dict(contacts=c, motion=None if sig is None else (np.eye(4) if D is None else D, sig),
                                 batch=len(self.map.batches) - 1 if keep else None, turn_shown=self._turn_shown,
-                                odometry=raw))
+                                odometry=raw, turn_held=held))
         if self.smooth_every and len(self._steps) >= self._next_smooth:
             self.smooth()
             k = len(self._steps)
@@ -963,7 +1036,8 @@ class TactileSLAM:
             [st["motion"] for st in self._steps], planar=self.planar, sigma_pos=self.map.sigma_pos,
             sigma_nor=self.map.sigma_nor, radius=self.map.lengthscale,
             hold=max(0, len(self._steps) - self.smooth_window) if self.smooth_window else 0,
-            fixed_turns=[st.get("turn_shown") is False for st in self._steps] if self._SMOOTH_FIX_TURNS else None)
+            fixed_turns=([st.get("turn_shown") is False or st.get("turn_held", False) for st in self._steps]
+                         if self._SMOOTH_FIX_TURNS else None))
         rec.update(info)
         if info["accepted"]:
             # the map moves each step's touches from its old pose to its new one (object frame);
