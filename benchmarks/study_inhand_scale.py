@@ -20,6 +20,8 @@ median error within each turn of 24 actions; the benchmark's measure), how many 
 within 5 and 10 degrees, the error in the fourth turn, how many runs stay within 10 degrees
 in every turn, and F@5mm of the final map. ``--without-feature-fit`` runs it without the
 scale fitted to where the handle's touches agree (``TactileSLAM._FEATURE_SCALE`` off);
+``--without-feature-turn`` without the turn from the handle's angle
+(``TactileSLAM._FEATURE_TURN`` off, the estimator before it);
 ``--before`` also without the corrections counted from the step whose surface they were
 measured against, the scale's robust posterior and the re-anchoring (``_TURN_REF`` and
 ``_SCALE_MIXTURE`` off), in the same processes. Two worker processes; about fifteen
@@ -52,7 +54,7 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
              "calibrated"))
 
 
-def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None):
+def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None, feature_turn=True):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions).
 
@@ -79,6 +81,8 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=T
         TactileSLAM._TURN_REF = TactileSLAM._SCALE_MIXTURE = False
     if before or not fit:
         TactileSLAM._FEATURE_SCALE = False
+    if before or not feature_turn:
+        TactileSLAM._FEATURE_TURN = False
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
                        motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
@@ -107,14 +111,15 @@ def _run(args) -> tuple:
     scale held or started from; the turn noise assumed, rad; the median error per turn, deg)."""
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd, noise, before, fit = args
+    mesh, seed, scale, sd, noise, before, fit, feature_turn = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
-        cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit)[2].calibrate_odometry()
+        cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit,
+                         feature_turn=feature_turn)[2].calibrate_odometry()
         scale = cal.scale
         if noise == "calibrated":
             noise = cal.turn_noise
-    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit)
+    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit, feature_turn=feature_turn)
     return (turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
             turns)
 
@@ -135,6 +140,8 @@ def main(argv=None) -> int:
                          "robust posterior")
     ap.add_argument("--without-feature-fit", action="store_true",
                     help="the in-hand estimator without the scale fitted to where the handle's touches agree")
+    ap.add_argument("--without-feature-turn", action="store_true",
+                    help="the in-hand estimator without the turn from the feature's angle (_feature_turn)")
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
@@ -144,8 +151,8 @@ def main(argv=None) -> int:
     rows = []
     with ProcessPoolExecutor(2) as ex:
         for label, scale, sd, noise in settings:
-            res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit)
-                                     for s in seeds]))
+            res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit,
+                                      not args.without_feature_turn) for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
             t = np.array([r[4] for r in res])
@@ -160,7 +167,8 @@ def main(argv=None) -> int:
                       f"per seed {' / '.join(f'{v:.4f}' for v in c)}; turn noise (deg) {np.median(t):.2f} "
                       f"({t.min():.2f}-{t.max():.2f})", file=sys.stderr, flush=True)
     which = (" (the estimator before)" if args.before else
-             " (without the feature fit)" if args.without_feature_fit else "")
+             " (without the feature fit)" if args.without_feature_fit else
+             " (without the turn from the feature's angle)" if args.without_feature_turn else "")
     print(f"{args.mesh}, seeds {args.seeds}{which}\n")
     print("| scale | median growth (deg) | runs within 5 / 10 deg | 75th percentile / worst (deg) | "
           "error in turn 4, median (deg) | runs within 10 deg in every turn | F@5mm, median (range) |")
