@@ -147,11 +147,13 @@ class TactileSLAM:
         turns a few per cent too large or too small): each step where the map corrects the
         predicted turn moves the scale by a small fraction of that correction. The
         current value is ``.odometry_scale`` (its start until there is a map of 30 contacts).
-        On an object whose turn only a small feature shows (a mug's handle), once the
-        feature's touches from visits at least four steps apart agree clearly better under
-        one scale than under any other (odometry alone, no per-step correction), that scale
-        holds and every turn so far is set to the odometry's at it (docs/slam.md, "The
-        scale the handle's touches agree on").
+        On an object whose turn only a small feature shows (a mug's handle), the turn and
+        the scale come instead, once the feature has been touched, from a filter over the
+        turn, the scale and the feature's one angle about the axis, and every earlier pose
+        is turned onto the turn all the contacts so far imply (with
+        ``odometry_scale_sd > 0``; docs/slam.md, "The handle's angle as a landmark": on
+        held-out runs of the mug 28 of 40 within 10 degrees of growth over four turns,
+        against 21 before it).
         Off by default: with an unbiased odometry it only adds noise of about a per cent.
     odometry_scale : float
         The scale on the odometry's turn to start from, in [0.8, 1.25]: a calibration of
@@ -196,8 +198,10 @@ class TactileSLAM:
         ``turn_search`` (one record per step whose contacts moved the turn),
         ``feature_scale`` (one record per fit of the scale to the feature's touches: the
         step, the best scale, the features matched there, the features, the margin over
-        any scale 0.01 away) and ``reanchor`` (step, anchor, the anchor's correction in
-        degrees).
+        any scale 0.01 away), ``reanchor`` (step, anchor, the anchor's correction in
+        degrees) and ``feature_turn`` (one record per step whose turn the feature's angle
+        set: the step, the correction in degrees, the filter's scale, the feature contacts
+        taken so far).
     """
 
     def __init__(self, bounds, *, motion=(0.002, np.deg2rad(2.0)), odometry_noise=(0.001, np.deg2rad(1.0)),
