@@ -569,9 +569,10 @@ def test_in_hand_mug_turn_held_by_the_scale_its_handle_touches_agree_on(monkeypa
 
 def test_in_hand_mug_turn_from_the_handles_angle():
     """The handle's angle as one number: the filter over turn, scale and that angle learns
-    the scale, holds the turn within 10 degrees in every turn, and the trajectory ends on
-    its smoothed turns (each pose's turn about the axis within a degree of them: the
-    smoother's revisions of the other degrees of freedom move it a little)."""
+    the scale, holds the turn within 10 degrees in every turn, sets the current pose's turn,
+    and the smoothing rounds put the earlier poses on its smoothed turns (each pose's turn
+    about the axis within a degree of them at the median: the filter has learned more since
+    the last round)."""
     from touchloc.mapping._feature_turn import wrap
 
     slam, per_turn = _inhand_mug_run(4)

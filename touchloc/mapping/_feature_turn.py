@@ -17,7 +17,7 @@ distance from the axis exceeds the median distance of every contact so far by ``
 and it lies at least ``zcut`` inside the heights touched so far (rims flare); contacts more
 than ``gate`` standard deviations from the prediction are left out.
 
-Measured offline on the in-hand mug's runs (docs/slam.md, "The handle as a landmark";
+Measured on the in-hand mug's runs (docs/slam.md, "The handle's angle as a landmark";
 ``benchmarks/study_inhand_landmark.py``).
 """
 
