@@ -3,10 +3,11 @@
     python benchmarks/study_inhand_landmark.py [--seeds 15-34] [--margin 0.014] [--zcut 0.012]
 
 Runs the SLAM benchmark's in-hand world on the mug (``study_inhand_scale.inhand_run``, the
-scale learned, without the turn from the feature's angle: the estimator before it) and records each update's world contact points, the
-odometry's turn, the true pose and the estimated one. It then tracks the turn about the
-hand's axis again, offline, by the three-state Kalman filter the estimator now runs in
-the loop (``touchloc.mapping._feature_turn.FeatureTurn``), which knows nothing of the map:
+scale learned, without the turn from the feature's angle: the estimator before it) and
+records each update's world contact points, the odometry's turn, the true pose and the
+estimated one. It then tracks the turn about the hand's axis again, offline, by the
+three-state Kalman filter the estimator now runs in the loop
+(``touchloc.mapping._feature_turn.FeatureTurn``), which knows nothing of the map:
 the turn theta, the odometry's scale s and the handle's angle phi in the object frame,
 
     theta_{t+1} = theta_t + s * R_t + w_t     (R_t the reported turn, w_t ~ N(0, (0.75 deg)^2)),
@@ -117,7 +118,8 @@ def main(argv=None) -> int:
         truth = np.unwrap([_yaw(s["truth"]) for s in steps])
         est = np.unwrap([_yaw(T) for T in traj])
         truth, est = truth - truth[0], est - est[0]
-        full = np.array([Rotation.from_matrix(T[:3, :3] @ s["truth"][:3, :3].T).magnitude() for T, s in zip(traj, steps)])
+        full = np.array([Rotation.from_matrix(T[:3, :3] @ s["truth"][:3, :3].T).magnitude()
+                         for T, s in zip(traj, steps)])
         prof, s_prof = handle_filter(steps, args.margin, args.zcut, "profile")
         orac, _ = handle_filter(steps, classify="oracle")
         scales.append(s_prof)

@@ -12,10 +12,11 @@ estimated turn (a map drawn at drifting turns agrees with a drifting estimate):
     alpha       = phi + theta_t + v,       v ~ N(0, feature_sd^2)  (a feature contact's angle)
 
 with ``theta_0 = 0`` (the gauge: the turn since the first pose), ``s ~ N(scale0, scale_sd^2)``
-and ``phi`` unknown (a prior of 100 rad standard deviation) until the first feature contact. A contact counts as the feature's when its
-distance from the axis exceeds the median distance of every contact so far by ``margin``
-and it lies at least ``zcut`` inside the heights touched so far (rims flare); contacts more
-than ``gate`` standard deviations from the prediction are left out.
+and ``phi`` unknown (a prior of 100 rad standard deviation) until the first feature
+contact. A contact counts as the feature's when its distance from the axis exceeds the
+median distance of every contact so far by ``margin`` and it lies at least ``zcut`` inside
+the heights touched so far (rims flare); contacts more than ``gate`` standard deviations
+from the prediction are left out.
 
 Measured on the in-hand mug's runs (docs/slam.md, "The handle's angle as a landmark";
 ``benchmarks/study_inhand_landmark.py``).
@@ -47,7 +48,8 @@ class FeatureTurn:
         # the smoothed turns (:meth:`smoothed`)
         self.history: list = []
         self.turn_sd, self.feature_sd = float(turn_sd), float(feature_sd)
-        self.margin, self.zcut, self.gate, self.min_contacts = float(margin), float(zcut), float(gate), int(min_contacts)
+        self.margin, self.zcut, self.gate = float(margin), float(zcut), float(gate)
+        self.min_contacts = int(min_contacts)
         self.started = False      # phi known (a feature contact seen)
         self._rho: list = []
         self._z: list = []

@@ -654,12 +654,6 @@ class TactileSLAM:
         a = w / np.linalg.norm(w)
         q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
 
-        def about_axis(c):
-            M = np.eye(4)
-            M[:3, :3] = Rotation.from_rotvec(c * a).as_matrix()
-            M[:3, 3] = q - M[:3, :3] @ q
-            return M
-
         R = self.trajectory[0][:3, :3]
         corr = []
         for j in range(anchor + 1):
@@ -674,11 +668,11 @@ class TactileSLAM:
         moves = [None] * len(self.map.batches)
         for j in range(n):
             old = self.trajectory[j + 1]
-            new = about_axis(corr[j] if j <= anchor else c_a) @ old
+            new = _about_axis(corr[j] if j <= anchor else c_a, a, q) @ old
             self.trajectory[j + 1] = new
             if self._steps[j]["batch"] is not None:
                 moves[self._steps[j]["batch"]] = np.linalg.inv(new) @ old
-        M = about_axis(c_a)
+        M = _about_axis(c_a, a, q)
         self.particles = np.einsum("ij,njk->nik", M, self.particles)
         self.info.setdefault("reanchor", []).append((n, anchor, float(np.degrees(c_a))))
         if any(m is not None for m in moves):
@@ -806,19 +800,9 @@ class TactileSLAM:
             ft.update(c.points, q, a)
         if not (aware and ft.started):
             return T, False
-        R0 = self.trajectory[0][:3, :3]
-
-        def about_axis(c, p):
-            M = np.eye(4)
-            M[:3, :3] = Rotation.from_rotvec(c * a).as_matrix()
-            M[:3, 3] = p - M[:3, :3] @ p
-            return M
-
-        def turn_of(Tj):
-            return float(checked_rotations(Tj[:3, :3] @ R0.T).as_rotvec() @ a)
-
-        corr = float(wrap(ft.turn - turn_of(T)))
-        M = about_axis(corr, q)
+        now = float(checked_rotations(T[:3, :3] @ self.trajectory[0][:3, :3].T).as_rotvec() @ a)
+        corr = float(wrap(ft.turn - now))
+        M = _about_axis(corr, a, q)
         self.particles = np.einsum("ij,njk->nik", M, self.particles)
         lo, hi = self._SCALE_RANGE
         self.odometry_scale = float(np.clip(ft.scale, lo, hi))
@@ -842,10 +826,7 @@ class TactileSLAM:
             return None
         out = np.array(poses, copy=True)
         for j, c in zip(self._turn_steps, d):
-            M = np.eye(4)
-            M[:3, :3] = Rotation.from_rotvec(c * a).as_matrix()
-            M[:3, 3] = poses[j][:3, 3] - M[:3, :3] @ poses[j][:3, 3]
-            out[j] = M @ poses[j]
+            out[j] = _about_axis(c, a, poses[j][:3, 3]) @ poses[j]
         self.info.setdefault("feature_reanchor", []).append((len(self._steps), float(np.degrees(np.max(np.abs(d))))))
         return out
 
@@ -1309,6 +1290,14 @@ def _pose_jacobian(x, n, sigma_nor):
     noise2 = sigma_nor**2 * dist2
     shrink = np.clip(1.0 - noise2 / np.maximum(lever * lever, 1e-30), 0.0, None)
     return np.concatenate([n, lever * shrink], axis=-1)
+
+
+def _about_axis(angle: float, a, p) -> np.ndarray:
+    """The rigid turn by ``angle`` (rad) about the unit axis ``a`` through the point ``p``."""
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_rotvec(angle * np.asarray(a)).as_matrix()
+    M[:3, 3] = p - M[:3, :3] @ p
+    return M
 
 
 def _scaled_turn(D, scale):
