@@ -66,7 +66,7 @@ class _Oracle(FeatureTurn):
         y = (np.asarray(points) - self.truth[:3, 3]) @ self.truth[:3, :3]
         use = (np.abs(np.degrees(np.arctan2(y[:, 1], y[:, 0])) - 90.0) < 15.0) & (np.hypot(y[:, 0], y[:, 1]) > 0.045)
         r = np.asarray(points)[use] - q
-        return np.arctan2(r[:, 1], r[:, 0])
+        return np.arctan2(r[:, 1], r[:, 0]), np.hypot(r[:, 0], r[:, 1]), r[:, 2]
 
 
 def handle_filter(steps, margin=0.014, zcut=0.012, classify="profile"):

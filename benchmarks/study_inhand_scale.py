@@ -54,7 +54,8 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
              "calibrated"))
 
 
-def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None, feature_turn=True):
+def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None, feature_turn=True,
+               seek=True):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions).
 
@@ -83,6 +84,8 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=T
         TactileSLAM._FEATURE_SCALE = False
     if before or not feature_turn:
         TactileSLAM._FEATURE_TURN = False
+    if not seek:
+        TactileSLAM._FEATURE_SEEK = False
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
                        motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
@@ -111,15 +114,16 @@ def _run(args) -> tuple:
     scale held or started from; the turn noise assumed, rad; the median error per turn, deg)."""
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd, noise, before, fit, feature_turn = args
+    mesh, seed, scale, sd, noise, before, fit, feature_turn, seek = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
         cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit,
-                         feature_turn=feature_turn)[2].calibrate_odometry()
+                         feature_turn=feature_turn, seek=seek)[2].calibrate_odometry()
         scale = cal.scale
         if noise == "calibrated":
             noise = cal.turn_noise
-    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit, feature_turn=feature_turn)
+    obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit, feature_turn=feature_turn,
+                                          seek=seek)
     return (turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
             turns)
 
@@ -142,6 +146,8 @@ def main(argv=None) -> int:
                     help="the in-hand estimator without the scale fitted to where the handle's touches agree")
     ap.add_argument("--without-feature-turn", action="store_true",
                     help="the in-hand estimator without the turn from the feature's angle (_feature_turn)")
+    ap.add_argument("--without-seeking", action="store_true",
+                    help="the explorer without the value of meeting the feature where the filter expects it")
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
@@ -152,7 +158,7 @@ def main(argv=None) -> int:
     with ProcessPoolExecutor(2) as ex:
         for label, scale, sd, noise in settings:
             res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit,
-                                      not args.without_feature_turn) for s in seeds]))
+                                      not args.without_feature_turn, not args.without_seeking) for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
             t = np.array([r[4] for r in res])
@@ -168,7 +174,8 @@ def main(argv=None) -> int:
                       f"({t.min():.2f}-{t.max():.2f})", file=sys.stderr, flush=True)
     which = (" (the estimator before)" if args.before else
              " (without the feature fit)" if args.without_feature_fit else
-             " (without the turn from the feature's angle)" if args.without_feature_turn else "")
+             " (without the turn from the feature's angle)" if args.without_feature_turn else
+             " (without seeking the feature)" if args.without_seeking else "")
     print(f"{args.mesh}, seeds {args.seeds}{which}\n")
     print("| scale | median growth (deg) | runs within 5 / 10 deg | 75th percentile / worst (deg) | "
           "error in turn 4, median (deg) | runs within 10 deg in every turn | F@5mm, median (range) |")

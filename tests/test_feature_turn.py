@@ -67,3 +67,54 @@ def test_the_feature_filter_ignores_the_body_and_gates_stray_contacts():
     body = FeatureTurn()
     _run(body, reported, [P[:3] for P in contacts])
     assert not body.started and body.used == 0 and body.scale == 1.0
+
+
+def test_a_stray_taken_first_for_the_feature_is_outvoted():
+    """The first contact that passes for the feature fixes its angle. A stray there (a
+    rim at another angle) would make every true sighting after it look wrong; the filter
+    starts a second track on the first true sighting it cannot explain and follows the
+    track the later sightings support."""
+    rng = np.random.default_rng(2)
+    truth, reported, contacts = _turned(rng)
+    # a stray 120 deg off the feature at the first step that can count (20 contacts in)
+    k = 8
+    f = 1.2 + truth[k] + np.deg2rad(120.0)
+    contacts[k] = np.vstack([contacts[k], [0.07 * np.cos(f), 0.07 * np.sin(f), 0.05]])
+    ft = FeatureTurn()
+    filtered = _run(ft, reported, contacts)
+    assert len(ft.tracks) >= 2
+    # the best track holds the sightings, not the stray
+    assert ft.used >= 13
+    assert ft.scale == pytest.approx(1 / 1.05, abs=0.01)
+    err = np.degrees(np.abs(wrap(filtered - truth)))
+    assert np.median(err[48:]) < 6.0 and np.max(err[48:]) < 15.0
+
+
+def test_the_chance_of_meeting_the_feature_and_what_it_teaches():
+    """Where the filter expects the feature, a touch aimed at it meets it, one on the far
+    side of the body or one stopped by the body first does not; and a sighting teaches
+    more the longer the feature has gone unseen (the scale's uncertainty times the turn)."""
+    truth, reported, contacts = _turned(np.random.default_rng(0), steps=24)
+    ft = FeatureTurn()
+    assert ft.information(reported[0]) == 0.0
+    assert not ft.hit_probability(np.zeros((1, 3)), [[1.0, 0, 0]], [1.0], np.zeros(3), np.array([0, 0, 1.0]), 0.2).any()
+    _run(ft, reported, contacts)
+    assert ft.started
+    z = np.array([0.0, 0.0, 1.0])
+    # the feature (radius 70 mm, angle phi + turn) at the next step, about 0.05 m up
+    ang = 1.2 + truth[-1] + np.deg2rad(15.0)
+    u = np.array([np.cos(ang), np.sin(ang), 0.0])
+    side = np.cross(z, u)
+    origins = np.array([0.07 * u + 0.2 * side + [0, 0, 0.05],      # across the feature, from the side
+                        -0.07 * u + 0.2 * side + [0, 0, 0.05],     # across the far side
+                        0.2 * u + [0, 0, 0.05],                    # straight in along it
+                        -0.2 * u + [0, 0, 0.05]])                  # from behind: the body stops it
+    dirs = np.array([-side, -side, -u, u])
+    p = ft.hit_probability(origins, dirs, np.full(4, 0.4), np.zeros(3), z, reported[-1])
+    assert p[0] > 0.3 and p[2] > 0.3
+    assert p[1] < 0.01 and p[3] < 0.01
+    # unseen for a while, the feature's angle is less certain: a sighting teaches more
+    now = ft.information(reported[-1])
+    for R in reported[:12]:
+        ft.predict(R)
+    assert ft.information(reported[-1]) > now + 0.1

@@ -423,6 +423,12 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
                 # (an odometry's bias, which the motion model does not know; zero for a box)
                 cov = slam.pose_covariance() + slam._unseen_turn_covariance()
                 info = _slam_information(smap, scored, owner, cov)
+                # the feature that shows an in-hand turn, where its own contacts put it
+                p, nats = slam._feature_seeking(scored)
+                if nats > 0.0:
+                    miss = np.ones(len(cands))
+                    np.multiply.at(miss, owner, 1.0 - p)
+                    info = info + nats * (1.0 - miss)
             else:
                 info = np.bincount(owner, weights=ray_information(smap, scored), minlength=len(cands))
             k = int(np.argmax(info))

@@ -262,6 +262,8 @@ class TactileSLAM:
                               if self._FEATURE_TURN and self.learn_odometry_scale and self.odometry_scale_sd > 0.0
                               else None)
         self._turn_axis = None
+        self._turn_frame = None       # the axis's point and direction in the object frame
+        self._turn_last = None        # the last reported turn (rad)
         self._turn_steps: list = []   # the step of each of the feature filter's steps
 
     @property
@@ -477,6 +479,9 @@ class TactileSLAM:
     #: the in-hand turn from the feature's angle (_feature_turn.FeatureTurn) once the feature is
     #: seen, instead of the map's corrections and the scale's updates from them
     _FEATURE_TURN = True
+    #: the explorer also values a touch by its chance of meeting that feature, where the
+    #: filter expects it (_feature_seeking)
+    _FEATURE_SEEK = True
 
     @staticmethod
     def _twists(P, T0):
@@ -791,23 +796,51 @@ class TactileSLAM:
             if float(np.linalg.norm(w)) < 1e-9:
                 return T, False
             self._turn_axis = w / np.linalg.norm(w)
+            # the axis in the object frame: the contacts' radii and heights are taken there
+            # (the body of revolution stays put in it when the object tilts in the hand)
+            q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
+            self._turn_frame = (T[:3, :3].T @ (q - T[:3, 3]), T[:3, :3].T @ self._turn_axis)
         a = self._turn_axis
         ft.predict(float(w @ a))
-        # the axis's point: where the reported turn leaves the world fixed
-        q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
+        self._turn_last = float(w @ a)
         self._turn_steps.append(len(self._steps))
+        now = self._turn_of(T)
         if c is not None:
-            ft.update(c.points, q, a)
+            ft.update((c.points - T[:3, 3]) @ T[:3, :3], *self._turn_frame, base=now)
         if not (aware and ft.started):
             return T, False
-        now = float(checked_rotations(T[:3, :3] @ self.trajectory[0][:3, :3].T).as_rotvec() @ a)
         corr = float(wrap(ft.turn - now))
-        M = _about_axis(corr, a, q)
+        # the axis's point: where the reported turn leaves the world fixed
+        M = _about_axis(corr, a, np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0])
         self.particles = np.einsum("ij,njk->nik", M, self.particles)
         lo, hi = self._SCALE_RANGE
         self.odometry_scale = float(np.clip(ft.scale, lo, hi))
         self.info.setdefault("feature_turn", []).append((len(self._steps), float(np.degrees(corr)), ft.scale, ft.used))
         return M @ T, True
+
+    def _turn_of(self, T) -> float:
+        """The turn (rad) of pose ``T`` from the first pose about the feature filter's axis."""
+        return float(checked_rotations(T[:3, :3] @ self.trajectory[0][:3, :3].T).as_rotvec() @ self._turn_axis)
+
+    def _feature_seeking(self, touches):
+        """``(p, nats)``: for touches (a list of GuardedTouch) made at the next update, in
+        the object frame as the object is expected then (:meth:`predicted_pose`), the
+        chance that each meets the feature whose angle sets the turn
+        (:meth:`FeatureTurn.hit_probability`), and what meeting it would teach about the
+        turn (:meth:`FeatureTurn.information`); zeros before the feature is known or off
+        the in-hand path. The explorer adds it to a hand's score, so that a turn growing
+        uncertain between visits sends the hand back to the feature, which the map,
+        drawing it anew at each visit, may not show."""
+        ft = self._feature_turn
+        p = np.zeros(len(touches))
+        if not self._FEATURE_SEEK or ft is None or not ft.started or self._turn_last is None or not len(touches):
+            return p, 0.0
+        o = np.array([t.origin for t in touches])
+        d = np.array([t.direction for t in touches])
+        travel = np.array([t.max_travel for t in touches])
+        turn = self._turn_last
+        return (ft.hit_probability(o, d, travel, *self._turn_frame, turn, base=self._turn_of(self.predicted_pose())),
+                ft.information(turn))
 
     def _smoothed_turns(self, poses):
         """``poses`` (the trajectory after its first entry, one per step) with each turned
@@ -818,10 +851,8 @@ class TactileSLAM:
         ft = self._feature_turn
         if ft is None or not ft.started or not any(st.get("turn_held") for st in self._steps):
             return None
-        a, R0 = self._turn_axis, self.trajectory[0][:3, :3]
-        th = ft.smoothed()
-        d = np.array([float(wrap(t - checked_rotations(poses[j][:3, :3] @ R0.T).as_rotvec() @ a))
-                      for j, t in zip(self._turn_steps, th)])
+        a = self._turn_axis
+        d = np.array([float(wrap(t - self._turn_of(poses[j]))) for j, t in zip(self._turn_steps, ft.smoothed())])
         if not len(d) or np.max(np.abs(d)) < self._REANCHOR_MIN:
             return None
         out = np.array(poses, copy=True)
