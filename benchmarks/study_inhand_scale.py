@@ -1,7 +1,7 @@
 """The in-hand mug with its odometry learned online, known, or calibrated on a box.
 
     python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug] [--settings 0,1,2,3,4]
-        [--calibrate-on milk] [--before | --without-feature-fit]
+        [--calibrate-on milk] [--before | --without-feature-fit | --without-feature-turn | --without-seeking]
 
 The SLAM benchmark's in-hand world (15 deg turns about z, an odometry 5 % too large, 96
 three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
@@ -21,7 +21,9 @@ within 5 and 10 degrees, the error in the fourth turn, how many runs stay within
 in every turn, and F@5mm of the final map. ``--without-feature-fit`` runs it without the
 scale fitted to where the handle's touches agree (``TactileSLAM._FEATURE_SCALE`` off);
 ``--without-feature-turn`` without the turn from the handle's angle
-(``TactileSLAM._FEATURE_TURN`` off, the estimator before it);
+(``TactileSLAM._FEATURE_TURN`` off, the estimator before it); ``--without-seeking``
+without the explorer's value of meeting the handle where that filter expects it
+(``TactileSLAM._FEATURE_SEEK`` off);
 ``--before`` also without the corrections counted from the step whose surface they were
 measured against, the scale's robust posterior and the re-anchoring (``_TURN_REF`` and
 ``_SCALE_MIXTURE`` off), in the same processes. Two worker processes; about fifteen
