@@ -127,12 +127,16 @@ class FeatureTurn:
 
     def predict(self, reported: float) -> None:
         """The object turned by ``reported`` (rad) as the hand reports it; starts a step."""
-        F = np.array([[1.0, reported, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
         for t in [self._base, *self.tracks]:
-            t.x = F @ t.x
-            t.P = F @ t.P @ F.T
-            t.P[0, 0] += self.turn_sd**2
+            t.x, t.P, F = self._step(t.x, t.P, reported)
             t.history.append([t.x.copy(), t.P.copy(), t.x, t.P, F])
+
+    def _step(self, x, P, reported: float):
+        """``(mean, covariance, transition)`` one step on, the hand turning by ``reported``."""
+        F = np.array([[1.0, reported, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        P = F @ P @ F.T
+        P[0, 0] += self.turn_sd**2
+        return F @ x, P, F
 
     def smoothed(self) -> np.ndarray:
         """The turn at every step so far given all the steps' contacts (rad; a
@@ -239,11 +243,7 @@ class FeatureTurn:
 
     def _next(self, reported: float):
         """The best track's mean and covariance one step on, the hand turning by ``reported``."""
-        F = np.array([[1.0, reported, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-        t = self.best
-        P = F @ t.P @ F.T
-        P[0, 0] += self.turn_sd**2
-        return F @ t.x, P
+        return self._step(self.best.x, self.best.P, reported)[:2]
 
     def information(self, reported: float) -> float:
         """What one more feature contact at the next step, the hand turning by
