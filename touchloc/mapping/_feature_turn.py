@@ -146,13 +146,15 @@ class FeatureTurn:
         h = self.history
         if not h:
             return np.zeros(0)
+        # (a scale held, of zero variance, leaves its row empty: a pseudo-inverse then)
+        inv = np.linalg.pinv if self._base.P[1, 1] == 0.0 else np.linalg.inv
         xs = h[-1][2].copy()
         Ps = h[-1][3].copy()
         out = [xs[0]]
         for k in range(len(h) - 2, -1, -1):
             _, _, xf, Pf, _ = h[k]
             xp1, Pp1, _, _, F1 = h[k + 1]
-            C = Pf @ F1.T @ np.linalg.inv(Pp1)
+            C = Pf @ F1.T @ inv(Pp1)
             xs = xf + C @ (xs - xp1)
             Ps = Pf + C @ (Ps - Pp1) @ C.T
             out.append(xs[0])

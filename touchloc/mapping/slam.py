@@ -150,10 +150,11 @@ class TactileSLAM:
         On an object whose turn only a small feature shows (a mug's handle), the turn and
         the scale come instead, once the feature has been touched, from a filter over the
         turn, the scale and the feature's one angle about the axis, and every earlier pose
-        is turned onto the turn all the contacts so far imply (with
-        ``odometry_scale_sd > 0``; docs/slam.md, "The handle's angle as a landmark" and
-        "Tracks, the object frame, and seeking the handle": on held-out runs of the mug 34
-        of 40 within 10 degrees of growth over four turns, against 21 before it); with
+        is turned onto the turn all the contacts so far imply (docs/slam.md, "The handle's
+        angle as a landmark" and "Tracks, the object frame, and seeking the handle": on
+        held-out runs of the mug 34 of 40 within 10 degrees of growth over four turns,
+        against 21 before it; with a calibrated scale held, ``odometry_scale_sd=0``, the
+        filter keeps it and still takes the turn from the feature: 39 of 40); with
         ``explore``, the hand then also seeks the feature where the filter expects it.
         Off by default: with an unbiased odometry it only adds noise of about a per cent.
     odometry_scale : float
@@ -258,9 +259,9 @@ class TactileSLAM:
         self._anchor = None
         self._feature_fit = None
         # the turn from one feature's angle about the axis (a mug's handle; _feature_turn),
-        # on the in-hand path with the scale learned
+        # on the in-hand path with the scale learned or held (odometry_scale_sd=0)
         self._feature_turn = (FeatureTurn(self.odometry_scale, self.odometry_scale_sd, turn_sd=self.odometry_noise[1])
-                              if self._FEATURE_TURN and self.learn_odometry_scale and self.odometry_scale_sd > 0.0
+                              if self._FEATURE_TURN and self.learn_odometry_scale
                               else None)
         self._turn_axis = None
         self._turn_frame = None       # the axis's point and direction in the object frame
