@@ -684,11 +684,13 @@ def test_map_command_with_a_moving_object(tmp_path, capsys):
 def test_map_command_in_hand_takes_a_calibrated_or_learned_odometry_scale(capsys):
     from touchloc.cli import main
 
-    for scale in ("0.952", "learn"):
-        assert main(["map", "--mesh", "milk", "--touches", "4", "--moving", "inhand", "--fingers", "3",
-                     "--odometry-scale", scale]) == 0
-        # and it reports the scale the run's own trajectory implies, ready to be held
+    for scale in ("0.952", "learn", None):
+        assert main(["map", "--mesh", "milk", "--touches", "4", "--moving", "inhand", "--fingers", "3"]
+                    + ([] if scale is None else ["--odometry-scale", scale])) == 0
         out = capsys.readouterr().out
+        # learned unless given (the simulated hand's odometry is biased), and reported
+        assert ("scale learned on this run" in out) == (scale != "0.952")
+        # and it reports the scale the run's own trajectory implies, ready to be held
         line = [ln for ln in out.splitlines() if "imply an odometry scale" in ln]
         assert len(line) == 1
         implied = line[0].rsplit("--odometry-scale ", 1)[1].split(" --odometry-noise ")

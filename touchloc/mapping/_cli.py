@@ -26,8 +26,8 @@ def register(sub):
     p.add_argument("--odometry-scale", default=None, metavar="SCALE|learn",
                    help="with --moving inhand: the scale on the hand's reported turns. A number is a calibration "
                         "held fixed (the right one for the simulated bias is 0.952), with the turn of an object "
-                        "that only a small feature shows estimated apart; 'learn' learns it online from 1. "
-                        "Default: the turns taken as reported (see docs/slam.md, 'What a known scale is worth')")
+                        "that only a small feature shows estimated apart; 'learn' (the default) learns it online "
+                        "from 1 (see docs/slam.md, 'What a known scale is worth')")
     p.add_argument("--odometry-noise", type=float, default=1.5, metavar="DEG",
                    help="with --moving inhand: the standard deviation of each reported turn's error once scaled "
                         "(deg, default 1.5); an in-hand run ends by printing the value its own turns imply")
@@ -86,7 +86,8 @@ def run(args) -> int:
             world = MovingWorld(obj, T, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0),
                                 bias=0.05, rng=args.seed + 1, **noise)
             motion = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(args.odometry_noise)))
-            if args.odometry_scale == "learn":
+            if args.odometry_scale in (None, "learn"):
+                # the simulated hand reports its turns 5 % too large: learn the scale unless given
                 motion.update(learn_odometry_scale=True)
             elif args.odometry_scale is not None:
                 try:
@@ -134,6 +135,9 @@ def run(args) -> int:
             cal = slam.calibrate_odometry()
         except ValidationError:   # too short a run (fewer than three turns)
             pass
+    if args.moving == "inhand" and slam.odometry_scale_sd > 0.0:
+        print(f"the odometry's scale learned on this run: {slam.odometry_scale:.3f} (right for the simulated hand: "
+              f"{1 / 1.05:.3f})")
     if cal is not None:
         print(f"the estimated turns imply an odometry scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} and a turn "
               f"noise of {np.degrees(cal.turn_noise):.2f} deg; to hold them on another object: "
