@@ -798,11 +798,13 @@ class TactileSLAM:
             if float(np.linalg.norm(w)) < 1e-9:
                 return T, False
             self._turn_axis = w / np.linalg.norm(w)
+        a = self._turn_axis
+        # the axis's point: where the reported turn leaves the world fixed
+        q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
+        if self._turn_frame is None:
             # the axis in the object frame: the contacts' radii and heights are taken there
             # (the body of revolution stays put in it when the object tilts in the hand)
-            q = np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0]
-            self._turn_frame = (T[:3, :3].T @ (q - T[:3, 3]), T[:3, :3].T @ self._turn_axis)
-        a = self._turn_axis
+            self._turn_frame = (T[:3, :3].T @ (q - T[:3, 3]), T[:3, :3].T @ a)
         ft.predict(float(w @ a))
         self._turn_last = float(w @ a)
         self._turn_steps.append(len(self._steps))
@@ -812,8 +814,7 @@ class TactileSLAM:
         if not (aware and ft.started):
             return T, False
         corr = float(wrap(ft.turn - now))
-        # the axis's point: where the reported turn leaves the world fixed
-        M = _about_axis(corr, a, np.linalg.lstsq(np.eye(3) - raw[:3, :3], raw[:3, 3], rcond=None)[0])
+        M = _about_axis(corr, a, q)
         self.particles = np.einsum("ij,njk->nik", M, self.particles)
         lo, hi = self._SCALE_RANGE
         self.odometry_scale = float(np.clip(ft.scale, lo, hi))
