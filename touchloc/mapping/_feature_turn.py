@@ -41,6 +41,8 @@ def wrap(a):
 
 #: the feature's angle before its first contact: effectively unknown
 _PHI_PRIOR_VAR = 1e4
+#: a feature contact's angle measures phi + theta
+_H = np.array([1.0, 0.0, 1.0])
 
 
 class _Track:
@@ -92,14 +94,6 @@ class FeatureTurn:
         return bool(self.tracks)
 
     @property
-    def x(self) -> np.ndarray:
-        return self.best.x
-
-    @property
-    def P(self) -> np.ndarray:
-        return self.best.P
-
-    @property
     def history(self) -> list:
         """Per step of the best track: (predicted mean, covariance, filtered mean,
         covariance, transition), for the smoothed turns (:meth:`smoothed`)."""
@@ -149,14 +143,11 @@ class FeatureTurn:
         # (a scale held, of zero variance, leaves its row empty: a pseudo-inverse then)
         inv = np.linalg.pinv if self._base.P[1, 1] == 0.0 else np.linalg.inv
         xs = h[-1][2].copy()
-        Ps = h[-1][3].copy()
         out = [xs[0]]
         for k in range(len(h) - 2, -1, -1):
             _, _, xf, Pf, _ = h[k]
             xp1, Pp1, _, _, F1 = h[k + 1]
-            C = Pf @ F1.T @ inv(Pp1)
-            xs = xf + C @ (xs - xp1)
-            Ps = Pf + C @ (Ps - Pp1) @ C.T
+            xs = xf + Pf @ F1.T @ inv(Pp1) @ (xs - xp1)
             out.append(xs[0])
         return np.array(out[::-1])
 
@@ -199,7 +190,6 @@ class FeatureTurn:
         its radii, which pick the feature's contacts, do not spread with the tilt). A
         contact's world angle is its angle in the frame plus ``base``.
         """
-        H = np.array([1.0, 0.0, 1.0])
         stray = float(np.log(self.clutter / (2.0 * np.pi)))
         first = float(np.log((1.0 - self.clutter) / (2.0 * np.pi)))
         ang, rho, z = self._features(points, q, a)
@@ -208,13 +198,13 @@ class FeatureTurn:
             took = False
             for t in self.tracks:
                 v = float(wrap(alpha - t.x[0] - t.x[2]))
-                S = float(H @ t.P @ H) + self.feature_sd**2
+                S = float(_H @ t.P @ _H) + self.feature_sd**2
                 ll = float(np.log1p(-self.clutter) - 0.5 * (v * v / S + np.log(2.0 * np.pi * S)))
                 if v * v > self.gate**2 * S or ll < stray:
                     t.score += stray
                     continue
                 t.score += ll
-                self._kalman(t, v, S, H)
+                self._kalman(t, v, S)
                 taken[id(t)].append((alpha, r, h))
                 took = True
             if not took:
@@ -222,7 +212,7 @@ class FeatureTurn:
                 # stray for it)
                 t = self._base.copy()
                 t.score = self._seen * stray + first
-                self._kalman(t, float(wrap(alpha - t.x[0] - t.x[2])), float(H @ t.P @ H) + self.feature_sd**2, H)
+                self._kalman(t, float(wrap(alpha - t.x[0] - t.x[2])), float(_H @ t.P @ _H) + self.feature_sd**2)
                 self.tracks.append(t)
                 taken[id(t)] = [(alpha, r, h)]
                 if len(self.tracks) > self.max_tracks:
@@ -237,15 +227,21 @@ class FeatureTurn:
         return len(taken.get(id(self.best), [])) if self.tracks else 0
 
     @staticmethod
-    def _kalman(t, v, S, H):
-        K = t.P @ H / S
+    def _kalman(t, v, S):
+        """Track ``t`` updated by a feature contact of innovation ``v`` and its variance ``S``."""
+        K = t.P @ _H / S
         t.x = t.x + K * v
-        t.P = t.P - np.outer(K, H @ t.P)
+        t.P = t.P - np.outer(K, _H @ t.P)
         t.P = 0.5 * (t.P + t.P.T)
 
     def _next(self, reported: float):
         """The best track's mean and covariance one step on, the hand turning by ``reported``."""
         return self._step(self.best.x, self.best.P, reported)[:2]
+
+    def _angle_var(self, reported: float) -> float:
+        """The variance (rad^2) of the feature's world angle predicted for the next step."""
+        _, P = self._next(reported)
+        return float(_H @ P @ _H)
 
     def information(self, reported: float) -> float:
         """What one more feature contact at the next step, the hand turning by
@@ -255,9 +251,7 @@ class FeatureTurn:
         at the scale's uncertainty: a visit then teaches the scale, and so every later turn."""
         if not self.started:
             return 0.0
-        _, P = self._next(reported)
-        H = np.array([1.0, 0.0, 1.0])
-        return float(0.5 * np.log1p(float(H @ P @ H) / self.feature_sd**2))
+        return float(0.5 * np.log1p(self._angle_var(reported) / self.feature_sd**2))
 
     def targets(self, reported: float, q, a, base: float = 0.0) -> np.ndarray:
         """(n, 3) where the feature's contacts so far (:attr:`shape`) are expected at the
@@ -290,9 +284,7 @@ class FeatureTurn:
         out = np.zeros(len(o))
         if not self.started or not self.shape or not len(o):
             return out
-        _, P = self._next(reported)
-        H = np.array([1.0, 0.0, 1.0])
-        sd = float(np.sqrt(H @ P @ H))
+        sd = float(np.sqrt(self._angle_var(reported)))
         rho = np.array(self.shape)[:, 0]
         pts = self.targets(reported, q, a, base)
         # where each line enters the body's cylinder (inf: it does not)
