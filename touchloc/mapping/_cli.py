@@ -28,6 +28,12 @@ def register(sub):
                         "held fixed (the right one for the simulated bias is 0.952), with the turn of an object "
                         "that only a small feature shows estimated apart; 'learn' (the default) learns it online "
                         "from 1 (see docs/slam.md, 'What a known scale is worth')")
+    p.add_argument("--calibrate-on", default=None, metavar="MESH",
+                   help="with --moving inhand: first turn MESH (a box, whose touches show every turn; e.g. milk) "
+                        "in the same simulated hand for as many touches with the scale learned, read the "
+                        "odometry's scale off its trajectory (TactileSLAM.calibrate_odometry) and hold it while "
+                        "mapping --mesh: for a mug, more reliable than learning the scale on it (docs/slam.md, "
+                        "'Calibrating on a box, in practice')")
     p.add_argument("--odometry-noise", type=float, default=1.5, metavar="DEG",
                    help="with --moving inhand: the standard deviation of each reported turn's error once scaled "
                         "(deg, default 1.5); an in-hand run ends by printing the value its own turns imply")
@@ -41,6 +47,34 @@ def register(sub):
     p.add_argument("--save", default=None, help="write the map's mesh (any format trimesh writes: .obj, .ply, .stl)")
     p.add_argument("--save-map", default=None, help="write the map itself (.npz, reloadable with ShapeMap.load)")
     p.set_defaults(func=run)
+
+
+def _calibrate(box, world, args, motion, pad):
+    """The odometry's calibration read off ``box`` turned in ``world`` for ``args.touches``
+    actions with the scale learned (``TactileSLAM.calibrate_odometry``); printed."""
+    import contextlib
+    import io
+
+    import numpy as np
+
+    from .explore import explore
+    from .slam import TactileSLAM
+
+    lo, hi = box.bounds
+    slam = TactileSLAM((lo - pad, hi + pad), sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
+                       sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, thin=args.thin,
+                       learn_odometry_scale=True, **motion)
+    print(f"calibrating the hand's odometry on {box.name}: {args.touches} turns with the scale learned ...", flush=True)
+    with contextlib.redirect_stderr(io.StringIO()):
+        explore(world, (lo - pad - 0.03, hi + pad + 0.03), args.touches, planner=args.planner, rng=args.seed,
+                slam=slam, fingers=args.fingers)
+    try:
+        cal = slam.calibrate_odometry()
+    except ValidationError as exc:
+        raise ValidationError(f"--calibrate-on needs a longer run: {exc}") from None
+    print(f"  the trajectory implies a scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} ({cal.updates} turns; right for "
+          f"the simulated hand: {1 / 1.05:.3f}); held while mapping")
+    return cal
 
 
 def run(args) -> int:
@@ -69,6 +103,10 @@ def run(args) -> int:
     slam = None
     if args.odometry_scale is not None and args.moving != "inhand":
         raise ValidationError("--odometry-scale needs --moving inhand (only in-hand turns come with an odometry)")
+    if args.calibrate_on is not None and args.moving != "inhand":
+        raise ValidationError("--calibrate-on needs --moving inhand (only in-hand turns come with an odometry)")
+    if args.calibrate_on is not None and args.odometry_scale is not None:
+        raise ValidationError("give --calibrate-on or --odometry-scale, not both: each sets the scale to hold")
     if not (np.isfinite(args.odometry_noise) and 0.0 < args.odometry_noise <= 90.0):
         raise ValidationError(f"--odometry-noise must be in (0, 90] deg, got {args.odometry_noise!r}")
     # checked before the run starts, as ShapeMap would check it after the header
@@ -83,10 +121,18 @@ def run(args) -> int:
             world = MovingWorld(obj, T, push=(0.002, np.deg2rad(2.0)), planar=True, rng=args.seed + 1, **noise)
             motion = dict(planar=True)
         else:
-            world = MovingWorld(obj, T, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0),
-                                bias=0.05, rng=args.seed + 1, **noise)
+            def hand(o, pose, seed):
+                """The simulated hand turning ``o``: 15 deg an action, reported 5 % too large."""
+                return MovingWorld(o, pose, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0),
+                                   bias=0.05, rng=seed, **noise)
+
+            world = hand(obj, T, args.seed + 1)
             motion = dict(motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(args.odometry_noise)))
-            if args.odometry_scale in (None, "learn"):
+            if args.calibrate_on is not None:
+                box = load_mesh(args.calibrate_on, args.scale)
+                cal = _calibrate(box, hand(box, np.eye(4), args.seed + 2), args, motion, pad)
+                motion.update(learn_odometry_scale=True, odometry_scale=cal.scale, odometry_scale_sd=0.0)
+            elif args.odometry_scale in (None, "learn"):
                 # the simulated hand reports its turns 5 % too large: learn the scale unless given
                 motion.update(learn_odometry_scale=True)
             elif args.odometry_scale is not None:
@@ -127,6 +173,19 @@ def run(args) -> int:
     if history:
         stats = f"final Chamfer {history[-1][1] * 1e3:.2f} mm, F-score@5mm {history[-1][2]:.3f}"
     print(f"\n{res.touches} touches, {res.map.n_contacts} contacts in {dt:.1f} s; {stats}")
+    if slam is not None and len(slam.trajectory) > 1:
+        # SLAM poses map the map's frame (the world at the start) to the world: the mesh's
+        # own frame is at X @ T for the hidden start pose T
+        est = [X @ T for X in slam.trajectory[1:]]
+        rot = np.degrees([Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()
+                          for a, b in zip(est, world.trajectory[1:])])
+        tra = 1e3 * np.array([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, world.trajectory[1:])])
+        line = (f"pose error over the run: rotation median {np.median(rot):.1f} deg (last action {rot[-1]:.1f}), "
+                f"translation median {np.median(tra):.1f} mm")
+        if args.moving == "inhand" and len(rot) >= 24:
+            line += "; rotation per turn of 24 actions (median) " + " / ".join(
+                f"{np.median(rot[i:i + 24]):.1f}" for i in range(0, len(rot) - 23, 24)) + " deg"
+        print(line)
     cal = None
     if args.moving == "inhand":
         # what this run's trajectory implies of the odometry: on an object whose touches show
@@ -137,7 +196,9 @@ def run(args) -> int:
             pass
     if args.moving == "inhand" and slam.odometry_scale_sd > 0.0:
         print(f"the odometry's scale learned on this run: {slam.odometry_scale:.3f} (right for the simulated hand: "
-              f"{1 / 1.05:.3f})")
+              f"{1 / 1.05:.3f})" + ("; it never left its prior: too few touches showed the turn, and "
+                                     "--calibrate-on milk reads the scale off a box first"
+                                     if abs(slam.odometry_scale - 1.0) < 1e-3 else ""))
     if cal is not None:
         print(f"the estimated turns imply an odometry scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} and a turn "
               f"noise of {np.degrees(cal.turn_noise):.2f} deg; to hold them on another object: "
@@ -152,9 +213,6 @@ def run(args) -> int:
 
         tp = Path(args.plot)
         tpath = tp.with_name(tp.stem + "_trajectory" + tp.suffix)
-        # SLAM poses map the map's frame (the world at the start) to the world: the mesh's
-        # own frame is at X @ T for the hidden start pose T
-        est = [X @ T for X in slam.trajectory[1:]]
         print(f"wrote {plot_trajectory(tpath, est, world.trajectory[1:], obj=obj, title=title)}")
     if args.html:
         from .viz import write_map_html
