@@ -727,7 +727,7 @@ def test_map_command_calibrates_the_odometry_on_a_box_and_holds_it(capsys):
     for argv, why in ((["--moving", "push", "--calibrate-on", "milk"], "needs --moving inhand"),
                       (["--moving", "inhand", "--calibrate-on", "milk", "--odometry-scale", "0.95"], "not both"),
                       (["--moving", "inhand", "--calibrate-on", "no-such-mesh.obj"], "no-such-mesh"),
-                      (["--moving", "inhand", "--calibrate-on", "milk", "--touches", "1"], "longer run")):
+                      (["--moving", "inhand", "--calibrate-on", "milk", "--touches", "1"], "at least three")):
         assert main(["map", "--mesh", "mug", "--touches", "2", *argv]) == 1
         assert why in capsys.readouterr().err
 

@@ -159,6 +159,25 @@ def test_calibrate_odometry_reads_scale_and_noise_off_the_trajectory(milk):
         slam.calibrate_odometry()
 
 
+def test_calibrate_odometry_refuses_a_turn_the_touches_never_showed():
+    """A can turned in the hand: its touches cannot show the turn about its axis, so the
+    estimated turns are the odometry's own, and the scale they imply is the prior's. The
+    calibration says so instead of returning it with the odometry noise's small spread."""
+    from touchloc.data import load_object
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        can = load_object("can")
+    world = MovingWorld(can, rng=1, push=(0.0005, np.deg2rad(0.5)), inhand=True, step=np.deg2rad(15.0), bias=0.05)
+    slam = TactileSLAM(_box(can, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
+                       learn_odometry_scale=True, sigma_pos=0.001, sigma_nor=0.087, rng=1)
+    explore(world, _box(can, 0.06), 24, slam=slam, fingers=3, rng=1)
+    shown = [st["turn_shown"] for st in slam._steps]
+    assert shown.count(False) > 18      # the in-hand path ran, and the body hid the turn
+    with pytest.raises(ValidationError, match="showed the turn in only"):
+        slam.calibrate_odometry()
+
+
 def test_slam_bad_input(milk):
     with pytest.raises(ValidationError):
         TactileSLAM(((0, 0, 0), (1, 1, np.nan)))

@@ -71,7 +71,7 @@ def _calibrate(box, world, args, motion, pad):
     try:
         cal = slam.calibrate_odometry()
     except ValidationError as exc:
-        raise ValidationError(f"--calibrate-on needs a longer run: {exc}") from None
+        raise ValidationError(f"--calibrate-on {args.calibrate_on}: {exc}") from None
     print(f"  the trajectory implies a scale of {cal.scale:.3f} +- {cal.scale_sd:.3f} ({cal.updates} turns; right for "
           f"the simulated hand: {1 / 1.05:.3f}); held while mapping")
     return cal
@@ -176,12 +176,14 @@ def run(args) -> int:
     if slam is not None and len(slam.trajectory) > 1:
         # SLAM poses map the map's frame (the world at the start) to the world: the mesh's
         # own frame is at X @ T for the hidden start pose T
+        from ..belief import symmetric_pose_error
+
         est = [X @ T for X in slam.trajectory[1:]]
-        rot = np.degrees([Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()
-                          for a, b in zip(est, world.trajectory[1:])])
-        tra = 1e3 * np.array([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(est, world.trajectory[1:])])
-        line = (f"pose error over the run: rotation median {np.median(rot):.1f} deg (last action {rot[-1]:.1f}), "
-                f"translation median {np.median(tra):.1f} mm")
+        sym = obj.symmetries()
+        err = np.array([symmetric_pose_error(obj, a, b, symmetry=sym) for a, b in zip(est, world.trajectory[1:])])
+        tra, rot = 1e3 * err[:, 0], np.degrees(err[:, 1])
+        line = (f"pose error over the run (modulo the object's symmetry): rotation median {np.median(rot):.1f} deg "
+                f"(last action {rot[-1]:.1f}), translation median {np.median(tra):.1f} mm")
         if args.moving == "inhand" and len(rot) >= 24:
             line += "; rotation per turn of 24 actions (median) " + " / ".join(
                 f"{np.median(rot[i:i + 24]):.1f}" for i in range(0, len(rot) - 23, 24)) + " deg"
@@ -192,8 +194,8 @@ def run(args) -> int:
         # the turn (a box) it is the calibration to hold for one that rarely does (a mug)
         try:
             cal = slam.calibrate_odometry()
-        except ValidationError:   # too short a run (fewer than three turns)
-            pass
+        except ValidationError as exc:   # too short a run, or turns the touches did not show
+            print(f"no odometry calibration from this run: {str(exc).split(': ', 1)[-1]}")
     if args.moving == "inhand" and slam.odometry_scale_sd > 0.0:
         print(f"the odometry's scale learned on this run: {slam.odometry_scale:.3f} (right for the simulated hand: "
               f"{1 / 1.05:.3f})" + ("; it never left its prior: too few touches showed the turn, and "

@@ -345,9 +345,13 @@ class TactileSLAM:
         Raises
         ------
         ValidationError
-            If fewer than three updates came with an odometry that turned.
+            If fewer than three updates came with an odometry that turned, or if, with
+            the scale learned (the in-hand path), the contacts showed the turn in fewer
+            than a quarter of them: on a body of revolution (a can) the estimated turns
+            are the odometry's own, and the scale they imply would be the prior's, not a
+            measurement.
         """
-        turned, reported = [], []
+        turned, reported, seen = [], [], []
         axis = None
         for k, st in enumerate(self._steps):
             D = st.get("odometry")
@@ -362,10 +366,19 @@ class TactileSLAM:
             A, B = self.trajectory[k], self.trajectory[k + 1]
             turned.append(float(checked_rotations(B[:3, :3] @ A[:3, :3].T).as_rotvec() @ axis))
             reported.append(theta)
+            # False: on the in-hand path, this step's contacts did not show the turn (a body
+            # of revolution's), and no feature's angle set it
+            seen.append(st.get("turn_shown") is not False or bool(st.get("turn_held")))
         n = len(turned)
         if n < 3:
             raise ValidationError(f"calibrate_odometry needs at least three updates with an odometry that turned; "
                                   f"this run has {n}")
+        if 4 * sum(seen) < n:
+            raise ValidationError(
+                f"calibrate_odometry: the contacts showed the turn in only {sum(seen)} of the {n} updates that "
+                f"turned (the object, as touched, is a body of revolution about the turn's axis, and no feature "
+                f"of it was followed), so the trajectory's turns are the odometry's own; calibrate on an object "
+                f"whose touches show every turn, such as a box")
         turned, reported = np.array(turned), np.array(reported)
         scale = float(turned.sum() / reported.sum())
         a = self.trajectory[-1][:3, :3].T @ axis   # the last turn's axis in the object frame
