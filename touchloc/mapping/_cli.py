@@ -49,21 +49,26 @@ def register(sub):
     p.set_defaults(func=run)
 
 
+def _slam(bounds, args, **motion):
+    """The command's TactileSLAM over ``bounds``, at the contacts' noise given on the command line."""
+    import numpy as np
+
+    from .slam import TactileSLAM
+
+    return TactileSLAM(bounds, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
+                       sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, thin=args.thin, **motion)
+
+
 def _calibrate(box, world, args, motion, pad):
     """The odometry's calibration read off ``box`` turned in ``world`` for ``args.touches``
     actions with the scale learned (``TactileSLAM.calibrate_odometry``); printed."""
     import contextlib
     import io
 
-    import numpy as np
-
     from .explore import explore
-    from .slam import TactileSLAM
 
     lo, hi = box.bounds
-    slam = TactileSLAM((lo - pad, hi + pad), sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
-                       sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, thin=args.thin,
-                       learn_odometry_scale=True, **motion)
+    slam = _slam((lo - pad, hi + pad), args, learn_odometry_scale=True, **motion)
     print(f"calibrating the hand's odometry on {box.name}: {args.touches} turns with the scale learned ...", flush=True)
     with contextlib.redirect_stderr(io.StringIO()):
         explore(world, (lo - pad - 0.03, hi + pad + 0.03), args.touches, planner=args.planner, rng=args.seed,
@@ -114,7 +119,6 @@ def run(args) -> int:
     if args.moving == "none":
         world = SimulatedWorld(obj, T, rng=args.seed + 1, **noise)
     else:
-        from .slam import TactileSLAM
         from .world import MovingWorld
 
         if args.moving == "push":
@@ -143,8 +147,7 @@ def run(args) -> int:
                         from None
                 motion.update(learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=0.0)
         # the object frame is the world frame at the start: the truth to compare with is the start
-        slam = TactileSLAM(bounds, sigma_pos=max(args.noise_pos * 1e-3, 1e-4),
-                           sigma_nor=max(np.deg2rad(args.noise_nor), 1e-3), rng=args.seed, thin=args.thin, **motion)
+        slam = _slam(bounds, args, **motion)
         bounds = (bounds[0] - 0.03, bounds[1] + 0.03)
     print(f"{obj}\nhidden in the box {np.round(bounds[0] * 1e3, 1).tolist()} .. {np.round(bounds[1] * 1e3, 1).tolist()} mm; "
           f"{args.touches} touches, planner {args.planner}, map {args.method}")
