@@ -3,9 +3,9 @@
 Each cycle starts a Python process (a fresh interpreter, or a fork of this one) that opens
 the log for appending and writes records as fast as it can (each large enough to take
 several ``write`` calls, so a kill often lands mid-record), printing the number of every
-record whose ``append`` returned.
-The parent kills it with ``SIGKILL`` at a random moment. A record whose ``append``
-returned (it was acknowledged on stdout) must still be readable afterwards.
+record whose ``append`` returned. The parent kills it with ``SIGKILL`` at a random moment
+after its first acknowledged record. A record whose ``append`` returned (it was
+acknowledged on stdout) must still be readable afterwards.
 """
 
 from __future__ import annotations
@@ -123,10 +123,13 @@ def kill_cycles(path, n_cycles: int, *, rng=None, max_delay: float = 0.15, fsync
             wait()
             pipe.close()
             raise RuntimeError(f"writer did not start (cycle {cycle}): {first!r}")
+        # the random delay runs from the first acknowledged record, so that a loaded machine
+        # that is slow to schedule the writer cannot turn every cycle into an empty one
+        ack0 = pipe.readline()
         time.sleep(float(rng.uniform(0.0, max_delay)))
         os.kill(pid, signal.SIGKILL)
         wait()
-        out = pipe.read()
+        out = ack0 + pipe.read()
         pipe.close()
         for line in out.split(b"\n")[:-1]:  # the last piece may itself be cut
             if line.strip().isdigit():
