@@ -75,9 +75,11 @@ def test_draws_match_the_region_perturbation_and_embedding():
     assert abs(np.mean(dist <= r / 2) - 2.0**-5) < 0.02
 
 
-def test_capped_acceptance_keeps_one_over_count(monkeypatch):
+@pytest.mark.parametrize("cap", [8, 2])
+def test_capped_acceptance_keeps_one_over_count(monkeypatch, cap):
     # heavily overlapping balls (radius larger than the cloud): every draw is in dozens
-    # of balls; with the neighbour lists forbidden the capped two-stage acceptance is used
+    # of balls; with the neighbour lists forbidden the capped staged acceptance is used
+    # (cap 8: a capped recount at 128, then full counts; cap 2: recounts at 32 and 512)
     monkeypatch.setattr(_cover, "MAX_PAIRS_PER_CANDIDATE", -1e9)
     used = []
     monkeypatch.setattr(_cover, "_capped", lambda *a: used.append(1) or _cover._count_capped_serial(*a))
@@ -92,8 +94,8 @@ def test_capped_acceptance_keeps_one_over_count(monkeypatch):
     trials = 40
     kept = np.zeros(len(pick))
     for s in range(trials):
-        kept += accept_draws(d.centres_emb, d.emb, pick, r, np.random.default_rng(100 + s), flip_dims=4, cap=8)
-    assert used  # the capped scan ran
+        kept += accept_draws(d.centres_emb, d.emb, pick, r, np.random.default_rng(100 + s), flip_dims=4, cap=cap)
+    assert len(used) >= 2 * trials  # the capped scan ran, and recounted
     # expected number kept: sum 1/count; binomial spread over trials * draws
     expect = trials * np.sum(1.0 / counts)
     assert abs(kept.sum() - expect) < 4 * np.sqrt(expect)

@@ -290,6 +290,10 @@ def _in_lists(A, off, nbr, X, anchor, r2):
     return kernel(A, off, nbr, X, anchor, r2)
 
 
+#: Each stage of the capped counts caps this many times higher than the one before.
+STAGE = 16
+
+
 def _capped(A, X, r2, cap):
     kernel = _count_capped if len(X) * len(A) >= PARALLEL_MIN * 256 else _count_capped_serial
     return kernel(A, X, r2, cap)
@@ -316,12 +320,16 @@ def _plan(tree, n, rr, n_queries, cap):
     ("capped", None) when the balls overlap so much that a capped scan stops early, and
     ("tree", None) otherwise (one KD-tree query per candidate).
     """
-    probe = tree.data[np.linspace(0, n - 1, min(n, 64)).astype(np.int64)]
-    mean_2r = float(np.mean(tree.query_ball_point(probe, 2 * rr, return_length=True)))
+    A = tree.data
+    probe = A[np.linspace(0, n - 1, min(n, 64)).astype(np.int64)]
+    # the probes' squared distances to every centre in one product (an estimate to plan
+    # by: where the balls overlap heavily, 128 tree queries of the whole set cost more)
+    d2 = np.einsum("ij,ij->i", A, A)[None, :] - 2.0 * (probe @ A.T) + np.einsum("ij,ij->i", probe, probe)[:, None]
+    mean_2r = float(np.count_nonzero(d2 <= 4.0 * rr * rr)) / len(probe)
     if mean_2r * n <= MAX_PAIRS_PER_CANDIDATE * max(n_queries, 1) + 1e5:
         pairs = tree.query_pairs(2 * rr, output_type="ndarray")
         return "lists", _csr(np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2), n)
-    mean_r = float(np.mean(tree.query_ball_point(probe, rr, return_length=True)))
+    mean_r = float(np.count_nonzero(d2 <= rr * rr)) / len(probe)
     return ("capped" if mean_r >= cap else "tree"), None
 
 
@@ -383,9 +391,20 @@ class BallCounter:
         cnt = np.maximum(_capped(self.A, X, rr * rr, cap), 1)
         keep = u * cnt < 1.0
         sat = np.flatnonzero(keep & (cnt >= cap))
-        if len(sat):
-            full = _tree_counts(self.tree, X[sat], rr)
-            keep[sat] = rng.random(len(sat)) * full < cap
+        # the candidates kept at a saturated cap c are counted again up to STAGE c, and kept
+        # with probability c / that count; those that saturate it go on, and the last
+        # stage counts fully: 1 / count in all. Where the balls nearly all overlap (the
+        # first scales), full counts of every saturated candidate took two thirds of the cover
+        while len(sat):
+            nxt = cap * STAGE
+            if nxt >= len(self.A):
+                full = _tree_counts(self.tree, X[sat], rr)
+                keep[sat] = rng.random(len(sat)) * full < cap
+                break
+            cnt = _capped(self.A, X[sat], rr * rr, nxt)
+            ok = rng.random(len(sat)) * cnt < cap
+            keep[sat] = ok
+            sat, cap = sat[ok & (cnt >= nxt)], nxt
         out[idx] = keep
         return out
 
@@ -425,8 +444,9 @@ def accept_draws(centres_emb, cand_emb, parent, r, rng, *, flip_dims: int = 0, m
     (M,) bool: candidates to consider (the others are never kept). When the balls
     overlap heavily (early scales, or many centres), counts are capped at ``cap``: a
     candidate in ``cap`` or more balls is first kept with probability 1 / cap, and
-    only those kept are counted fully and kept again with probability cap / count, so
-    each candidate is still kept with probability exactly 1 / count.
+    only those kept are counted again (capped at ``STAGE`` times ``cap``, and so on, the
+    last time fully) and kept again with probability cap / count, so each candidate is
+    still kept with probability exactly 1 / count.
 
     Returns
     -------
