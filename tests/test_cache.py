@@ -307,9 +307,9 @@ def test_cli_reports_set_up_apart_and_reuses_the_grid(tmp_path):
 
 def test_warmup_command_builds_a_mesh_into_the_cache(tmp_path):
     env = dict(os.environ, TOUCHLOC_CACHE_DIR=str(tmp_path / "c"))
-    rc, out, err = _touchloc(["warmup", "--mesh", "lemon"], env)
+    rc, out, err = _touchloc(["warmup", "--mesh", "milk"], env)
     assert rc == 0, err
-    assert out.startswith("kernels: ") and "lemon: set-up:" in out
+    assert out.startswith("kernels: ") and "milk: set-up:" in out
     assert any(p.parent.name == "candidate_grid" for p in (tmp_path / "c").rglob("*.npz"))
 
 
