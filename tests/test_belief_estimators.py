@@ -316,6 +316,25 @@ def test_scaling_series_keeps_the_mugs_handle_with_many_contacts(objects):
         ScalingSeries(model, anneal="fast")
 
 
+def test_scaling_series_covers_hold_at_least_the_floor(objects):
+    """Balls as wide as a small planar region are worth a fraction of a ball each: without
+    the floor, later covers hold a handful of particles; with it, at least min_particles
+    (the first cover after the wide initial one may fall short: its draws are capped)."""
+    obj = objects["mug"]
+    region = PoseRegion.planar((0.0, 0.0), 0.05, z=-float(obj.bounds[0][2])).with_rho(obj.radius)
+    model = ProximityModel(obj, 0.002, 0.1)
+    p, n, _ = obj.sample_surface(10, rng=np.random.default_rng(4))
+    contacts = Contacts(p, n).transform(region.sample(1, rng=np.random.default_rng(5))[0])
+    sizes = {f: [st.n_particles for st in ScalingSeries(model, rng=1, progress=False, min_particles=f,
+                                                        final_moves=0).iterate(contacts, region)]
+             for f in (1, 50)}
+    assert min(sizes[1][3:]) < 20
+    assert min(sizes[50][3:]) >= 50
+    assert len(sizes[50]) == len(sizes[1])  # the same scales
+    with pytest.raises(ValidationError, match="min_particles"):
+        ScalingSeries(model, min_particles=0)
+
+
 def test_scaling_series_caps_its_draws_apart_from_its_particles(objects):
     """The draws per scale have their own cap: 8 x the particle cap unless given. (With 4 x
     a cap of 3000 the planar mug of the test above lost its handle in 4 of 12 trials.)"""

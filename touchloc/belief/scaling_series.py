@@ -310,7 +310,8 @@ class ScalingSeries:
         return np.concatenate(out), volume
 
     def _target(self, balls: float) -> int:
-        """Particles of a cover whose union is worth ``balls`` new balls: m per ball, capped."""
+        """Particles of a cover whose union is worth ``balls`` new balls: m per ball, capped
+        at ``max_particles`` and floored at ``min_particles``."""
         return int(np.clip(round(balls), min(self.min_particles, self.max_particles), self.max_particles))
 
     def _next_batch(self, start, total, stride, n_drawn, n_kept, m_balls):
