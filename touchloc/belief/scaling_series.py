@@ -273,7 +273,7 @@ class ScalingSeries:
         counter, parts = None, []
         n_drawn = n_kept = 0
         start, ratio = 0, self.m * (delta_prev / delta) ** dim
-        floor = min(self.min_particles, self.max_particles)
+        floor = self._floor
         while start < len(pick):
             stop = self._next_batch(start, len(pick), n_c if rounds else 1, n_drawn, n_kept, n_c * ratio)
             batch = pick[start:stop]
@@ -309,10 +309,15 @@ class ScalingSeries:
                 out.append(draws.poses(idx[mine]))
         return np.concatenate(out), volume
 
+    @property
+    def _floor(self) -> int:
+        """The fewest particles a later cover keeps: ``min_particles``, within the cap."""
+        return min(self.min_particles, self.max_particles)
+
     def _target(self, balls: float) -> int:
         """Particles of a cover whose union is worth ``balls`` new balls: m per ball, capped
         at ``max_particles`` and floored at ``min_particles``."""
-        return int(np.clip(round(balls), min(self.min_particles, self.max_particles), self.max_particles))
+        return int(np.clip(round(balls), self._floor, self.max_particles))
 
     def _next_batch(self, start, total, stride, n_drawn, n_kept, m_balls):
         """End of the next batch of draws: all of them, unless the particle cap will bind.
