@@ -519,11 +519,15 @@ def _inhand_mug_run(seed):
     return slam, [np.median(ang[i * 24:(i + 1) * 24]) for i in range(4)]
 
 
-def test_in_hand_mug_turn_held_by_its_handle():
+def test_in_hand_mug_turn_held_by_its_handle(monkeypatch):
     """A mug turned in hand with an odometry 5 % too large: its body, a surface of revolution
     about the turn's axis, cannot show the turn; the handle can. The error must stay within
-    10 degrees in each of four turns, and the learned scale must approach 1 / 1.05."""
+    10 degrees in each of four turns, and the learned scale must approach 1 / 1.05. Here
+    without the feature's angle filter (the path a run takes until that filter has seen the
+    handle, and where the turn is re-anchored)."""
+    monkeypatch.setattr(TactileSLAM, "_FEATURE_TURN", False)
     slam, per_turn = _inhand_mug_run(1)
+    assert slam._feature_turn is None
     # (integrating the odometry alone: 18 degrees off after the first turn, 72 after four)
     assert max(per_turn) < 10.0 and per_turn[3] - per_turn[0] < 10.0
     assert 0.94 < slam.odometry_scale < 0.975

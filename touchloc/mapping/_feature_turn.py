@@ -15,7 +15,9 @@ with ``theta_0 = 0`` (the gauge: the turn since the first pose), ``s ~ N(scale0,
 and ``phi`` unknown (a prior of 100 rad standard deviation) until the first feature
 contact. A contact counts as the feature's when its distance from the axis exceeds the
 median distance of every contact so far by ``margin`` and it lies at least ``zcut`` inside
-the heights touched so far (rims flare).
+the heights touched so far (rims flare). Those statistics need ``min_contacts`` contacts;
+the steps before are kept and replayed once there are that many, so that a feature touched
+in the first few steps is not lost.
 
 A contact that passes for the feature may be a stray (a rim the axis's estimate makes
 look wide), and the first one fixes ``phi``: a stray there would make every true contact
@@ -74,6 +76,7 @@ class FeatureTurn:
                  gate: float = 3.5, clutter: float = 0.1, max_tracks: int = 6, min_contacts: int = 20):
         # the odometry and the scale's prior alone: where each new track starts from
         self._base = _Track(np.array([0.0, float(scale0), 0.0]), np.diag([0.0, float(scale_sd) ** 2, _PHI_PRIOR_VAR]))
+        self._base0 = self._base.copy()
         self.tracks: list = []
         self.turn_sd, self.feature_sd = float(turn_sd), float(feature_sd)
         self.margin, self.zcut, self.gate = float(margin), float(zcut), float(gate)
@@ -82,6 +85,10 @@ class FeatureTurn:
         self._rho: list = []
         self._z: list = []
         self._seen = 0            # contacts that passed for the feature's
+        # the calls before there are min_contacts contacts, replayed in order when there
+        # are: (True, reported turn) for predict, (False, (points, q, a, base)) for update
+        # (None once replayed)
+        self._early: list | None = []
 
     @property
     def best(self) -> _Track:
@@ -121,6 +128,11 @@ class FeatureTurn:
 
     def predict(self, reported: float) -> None:
         """The object turned by ``reported`` (rad) as the hand reports it; starts a step."""
+        if self._early is not None:
+            self._early.append((True, float(reported)))
+        self._predict(reported)
+
+    def _predict(self, reported: float) -> None:
         for t in [self._base, *self.tracks]:
             t.x, t.P, F = self._step(t.x, t.P, reported)
             t.history.append([t.x.copy(), t.P.copy(), t.x, t.P, F])
@@ -162,13 +174,11 @@ class FeatureTurn:
     def _features(self, points, q, a):
         """``(angles, rho, z)``: the world angles about the axis (through ``q`` along unit
         ``a``) of the feature contacts among ``points`` (k, 3), their distances from the axis
-        and heights along it, after counting every contact."""
+        and heights along it, by the contacts counted so far (:meth:`update` counts them)."""
         y = np.asarray(points, dtype=float) - q
         z = y @ a
         r = y - np.outer(z, a)
         rho = np.linalg.norm(r, axis=1)
-        self._rho.extend(rho.tolist())
-        self._z.extend(z.tolist())
         none = np.zeros(0)
         if len(self._rho) < self.min_contacts:
             return none, none, none
@@ -181,7 +191,8 @@ class FeatureTurn:
 
     def update(self, points, q, a, base: float = 0.0) -> int:
         """Fold in one step's contact points; returns how many the best track took as the
-        feature's.
+        feature's (of this step's; the steps before ``min_contacts`` contacts are replayed
+        when it is reached).
 
         ``points`` (k, 3) are given in a frame in which the axis passes through ``q`` along
         unit ``a``, and ``base`` is that frame's own turn about the axis (rad): 0 for the
@@ -190,6 +201,29 @@ class FeatureTurn:
         its radii, which pick the feature's contacts, do not spread with the tilt). A
         contact's world angle is its angle in the frame plus ``base``.
         """
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        y = points - q
+        z = y @ a
+        self._rho.extend(np.linalg.norm(y - np.outer(z, a), axis=1).tolist())
+        self._z.extend(z.tolist())
+        if self._early is None:
+            return self._take(points, q, a, base)
+        self._early.append((False, (points, q, a, base)))
+        if len(self._rho) < self.min_contacts:
+            return 0
+        # enough contacts to tell the feature's: every step so far again, from the start
+        early, self._early = self._early, None
+        self._base = self._base0.copy()
+        took = 0
+        for turned, args in early:
+            if turned:
+                self._predict(args)
+            else:
+                took = self._take(*args)
+        return took
+
+    def _take(self, points, q, a, base) -> int:
+        """One step's feature contacts into the tracks (:meth:`update`)."""
         stray = float(np.log(self.clutter / (2.0 * np.pi)))
         first = float(np.log((1.0 - self.clutter) / (2.0 * np.pi)))
         ang, rho, z = self._features(points, q, a)
