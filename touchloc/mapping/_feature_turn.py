@@ -171,14 +171,20 @@ class FeatureTurn:
         e1 /= np.linalg.norm(e1)
         return e1, np.cross(a, e1)
 
+    @staticmethod
+    def _about(points, q, a):
+        """``(r, rho, z)`` of ``points`` (k, 3) about the axis through ``q`` along unit
+        ``a``: their offsets across it, distances from it and heights along it."""
+        y = np.asarray(points, dtype=float).reshape(-1, 3) - q
+        z = y @ a
+        r = y - np.outer(z, a)
+        return r, np.linalg.norm(r, axis=1), z
+
     def _features(self, points, q, a):
         """``(angles, rho, z)``: the world angles about the axis (through ``q`` along unit
         ``a``) of the feature contacts among ``points`` (k, 3), their distances from the axis
         and heights along it, by the contacts counted so far (:meth:`update` counts them)."""
-        y = np.asarray(points, dtype=float) - q
-        z = y @ a
-        r = y - np.outer(z, a)
-        rho = np.linalg.norm(r, axis=1)
+        r, rho, z = self._about(points, q, a)
         none = np.zeros(0)
         if len(self._rho) < self.min_contacts:
             return none, none, none
@@ -201,14 +207,12 @@ class FeatureTurn:
         its radii, which pick the feature's contacts, do not spread with the tilt). A
         contact's world angle is its angle in the frame plus ``base``.
         """
-        points = np.asarray(points, dtype=float).reshape(-1, 3)
-        y = points - q
-        z = y @ a
-        self._rho.extend(np.linalg.norm(y - np.outer(z, a), axis=1).tolist())
+        _, rho, z = self._about(points, q, a)
+        self._rho.extend(rho.tolist())
         self._z.extend(z.tolist())
         if self._early is None:
             return self._take(points, q, a, base)
-        self._early.append((False, (points, q, a, base)))
+        self._early.append((False, (np.array(points, dtype=float), q, a, base)))
         if len(self._rho) < self.min_contacts:
             return 0
         # enough contacts to tell the feature's: every step so far again, from the start
