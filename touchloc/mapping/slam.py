@@ -843,10 +843,13 @@ class TactileSLAM:
         the object frame as the object is expected then (:meth:`predicted_pose`), the
         chance that each meets the feature whose angle sets the turn
         (:meth:`FeatureTurn.hit_probability`), and what meeting it would teach about the
-        turn (:meth:`FeatureTurn.information`); zeros before the feature is known or off
-        the in-hand path. The explorer adds it to a hand's score, so that a turn growing
+        turn (:meth:`FeatureTurn.information`); zeros before the feature is known or
+        before any odometry. The explorer adds it to a hand's score, so that a turn growing
         uncertain between visits sends the hand back to the feature, which the map,
-        drawing it anew at each visit, may not show."""
+        drawing it anew at each visit, may not show. (On an object turned in the hand that
+        is no body of revolution, such as a box, the filter's feature is whatever stands
+        out from the axis, its corners: they are sought too, though the turn there comes
+        from the map.)"""
         ft = self._feature_turn
         p = np.zeros(len(touches))
         if not self._FEATURE_SEEK or ft is None or not ft.started or self._turn_last is None or not len(touches):
