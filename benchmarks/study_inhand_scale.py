@@ -1,7 +1,8 @@
 """The in-hand mug with its odometry learned online, known, or calibrated on a box.
 
     python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug] [--settings 0,1,2,3,4]
-        [--calibrate-on milk] [--before | --without-feature-fit | --without-feature-turn | --without-seeking]
+        [--calibrate-on milk] [--turns 4]
+        [--before | --without-feature-fit | --without-feature-turn | --without-seeking]
 
 The SLAM benchmark's in-hand world (15 deg turns about z, an odometry 5 % too large, 96
 three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
@@ -18,7 +19,9 @@ three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
 Reports the growth of the orientation error from the first turn to the fourth (the
 median error within each turn of 24 actions; the benchmark's measure), how many runs stay
 within 5 and 10 degrees, the error in the fourth turn, how many runs stay within 10 degrees
-in every turn, and F@5mm of the final map. ``--without-feature-fit`` runs it without the
+in every turn, and F@5mm of the final map. ``--turns 8`` runs eight turns (192 actions)
+instead of four: the growth is then from the first turn to the last, and the error is the
+last turn's; whether an error that grew stops growing is what tells bounded from drifting. ``--without-feature-fit`` runs it without the
 scale fitted to where the handle's touches agree (``TactileSLAM._FEATURE_SCALE`` off);
 ``--without-feature-turn`` without the turn from the handle's angle
 (``TactileSLAM._FEATURE_TURN`` off, the estimator before it); ``--without-seeking``
@@ -57,7 +60,7 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
 
 
 def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None, feature_turn=True,
-               seek=True):
+               seek=True, turns=4):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions).
 
@@ -104,11 +107,11 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=T
 
         slam.update = recorded
     with contextlib.redirect_stderr(io.StringIO()):
-        run = explore(world, (lo - 0.06, hi + 0.06), 96, slam=slam, fingers=3, rng=seed)
+        run = explore(world, (lo - 0.06, hi + 0.06), 24 * turns, slam=slam, fingers=3, rng=seed)
     ang = np.array([float(np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude()))
                     for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
-    turns = [float(np.median(ang[i * 24:(i + 1) * 24])) for i in range(4)]
-    return obj, world, slam, run, ang, turns
+    per_turn = [float(np.median(ang[i * 24:(i + 1) * 24])) for i in range(turns)]
+    return obj, world, slam, run, ang, per_turn
 
 
 def _run(args) -> tuple:
@@ -116,17 +119,17 @@ def _run(args) -> tuple:
     scale held or started from; the turn noise assumed, rad; the median error per turn, deg)."""
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd, noise, before, fit, feature_turn, seek = args
+    mesh, seed, scale, sd, noise, before, fit, feature_turn, seek, n_turns = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
         cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit,
-                         feature_turn=feature_turn, seek=seek)[2].calibrate_odometry()
+                         feature_turn=feature_turn, seek=seek, turns=n_turns)[2].calibrate_odometry()
         scale = cal.scale
         if noise == "calibrated":
             noise = cal.turn_noise
     obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit, feature_turn=feature_turn,
-                                          seek=seek)
-    return (turns[3] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
+                                          seek=seek, turns=n_turns)
+    return (turns[-1] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
             turns)
 
 
@@ -141,6 +144,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mesh", default="mug")
     ap.add_argument("--calibrate-on", default="milk", help="the mesh of the calibration runs (default milk)")
     ap.add_argument("--settings", default="0,1,2,3,4", help="which rows to run, a comma list of 0-4 (default all)")
+    ap.add_argument("--turns", type=int, default=4, help="turns of 24 actions per run (default 4, the benchmark's)")
     ap.add_argument("--before", action="store_true",
                     help="the in-hand estimator before the feature fit, the anchored corrections and the scale's "
                          "robust posterior")
@@ -151,6 +155,8 @@ def main(argv=None) -> int:
     ap.add_argument("--without-seeking", action="store_true",
                     help="the explorer without the value of meeting the feature where the filter expects it")
     args = ap.parse_args(argv)
+    if args.turns < 1:
+        ap.error("--turns must be at least 1")
     seeds = _seeds(args.seeds)
     settings = [SETTINGS[int(i)] for i in args.settings.split(",")]
     if args.calibrate_on != "milk":
@@ -160,14 +166,19 @@ def main(argv=None) -> int:
     with ProcessPoolExecutor(2) as ex:
         for label, scale, sd, noise in settings:
             res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit,
-                                      not args.without_feature_turn, not args.without_seeking) for s in seeds]))
+                                      not args.without_feature_turn, not args.without_seeking, args.turns)
+                                     for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
             t = np.array([r[4] for r in res])
             rows.append(f"| {label} | {np.median(g):+.1f} | {np.sum(np.abs(g) <= 5)} / {np.sum(np.abs(g) <= 10)} "
-                        f"of {len(g)} | {np.percentile(g, 75):+.1f} / {g.max():+.1f} | {np.median(t[:, 3]):.1f} | "
+                        f"of {len(g)} | {np.percentile(g, 75):+.1f} / {g.max():+.1f} | {np.median(t[:, -1]):.1f} | "
                         f"{np.sum(t.max(axis=1) <= 10)} of {len(g)} | {np.median(f):.2f} ({f.min():.2f}-{f.max():.2f}) |")
             print(f"{label}: growth per seed {' / '.join(f'{v:+.1f}' for v in g)}", file=sys.stderr, flush=True)
+            if args.turns != 4:
+                for s, row in zip(seeds, t):
+                    print(f"{label}: seed {s}, error per turn {' / '.join(f'{v:.1f}' for v in row)}", file=sys.stderr,
+                          flush=True)
             if isinstance(scale, str):
                 c = np.array([r[2] for r in res])
                 t = np.degrees([r[3] for r in res])
@@ -178,9 +189,10 @@ def main(argv=None) -> int:
              " (without the feature fit)" if args.without_feature_fit else
              " (without the turn from the feature's angle)" if args.without_feature_turn else
              " (without seeking the feature)" if args.without_seeking else "")
-    print(f"{args.mesh}, seeds {args.seeds}{which}\n")
-    print("| scale | median growth (deg) | runs within 5 / 10 deg | 75th percentile / worst (deg) | "
-          "error in turn 4, median (deg) | runs within 10 deg in every turn | F@5mm, median (range) |")
+    print(f"{args.mesh}, seeds {args.seeds}, {args.turns} turns{which}\n")
+    print(f"| scale | median growth, turn 1 -> {args.turns} (deg) | runs within 5 / 10 deg | "
+          f"75th percentile / worst (deg) | error in turn {args.turns}, median (deg) | "
+          "runs within 10 deg in every turn | F@5mm, median (range) |")
     print("|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
