@@ -23,8 +23,9 @@ in every turn, and F@5mm of the final map. ``--turns 8`` runs eight turns (192 a
 instead of four: the growth is then from the first turn to the last, and the error is the
 last turn's; whether an error that grew stops growing is what tells bounded from drifting.
 A second table gives the error per turn of the online estimate (each action's pose as its
-own update left it, before later touches revised it) beside the smoothed trajectory's. ``--without-feature-fit`` runs it without the
-scale fitted to where the handle's touches agree (``TactileSLAM._FEATURE_SCALE`` off);
+own update left it, before later touches revised it) beside the smoothed trajectory's.
+``--without-feature-fit`` runs it without the scale fitted to where the handle's touches
+agree (``TactileSLAM._FEATURE_SCALE`` off);
 ``--without-feature-turn`` without the turn from the handle's angle
 (``TactileSLAM._FEATURE_TURN`` off, the estimator before it); ``--without-seeking``
 without the explorer's value of meeting the handle where that filter expects it
@@ -32,7 +33,7 @@ without the explorer's value of meeting the handle where that filter expects it
 ``--before`` also without the corrections counted from the step whose surface they were
 measured against, the scale's robust posterior and the re-anchoring (``_TURN_REF`` and
 ``_SCALE_MIXTURE`` off), in the same processes. Two worker processes; about fifteen
-minutes for the five settings and twenty seeds on two cores. Prints a Markdown table; nothing
+minutes for the five settings and twenty seeds on two cores. Prints Markdown tables; nothing
 is written to docs/ (docs/benchmarks.md, "In-hand mug", and docs/slam.md, "What a known scale
 is worth", quote it).
 """
@@ -179,8 +180,10 @@ def main(argv=None) -> int:
             f = np.array([r[1] for r in res])
             t = np.array([r[4] for r in res])
             rows.append(f"| {label} | {np.median(g):+.1f} | {np.sum(np.abs(g) <= 5)} / {np.sum(np.abs(g) <= 10)} "
-                        f"of {len(g)} | {np.percentile(g, 75):+.1f} / {g.max():+.1f} | {np.median(t[:, -1]):.1f} | "
-                        f"{np.sum(t.max(axis=1) <= 10)} of {len(g)} | {np.median(f):.2f} ({f.min():.2f}-{f.max():.2f}) |")
+                        f"of {len(g)} | {np.percentile(g, 75):+.1f} / {g.max():+.1f} | "
+                        f"{np.median(t[:, -1]):.1f} | "
+                        f"{np.sum(t.max(axis=1) <= 10)} of {len(g)} | "
+                        f"{np.median(f):.2f} ({f.min():.2f}-{f.max():.2f}) |")
             print(f"{label}: growth per seed {' / '.join(f'{v:+.1f}' for v in g)}", file=sys.stderr, flush=True)
             on = np.array([r[5] for r in res])
             online.append(f"| {label} | " + " / ".join(f"{v:.1f}" for v in np.median(t, axis=0)) + " | "
