@@ -3,6 +3,7 @@
     python benchmarks/study_inhand_scale.py [--seeds 15-34] [--mesh mug] [--settings 0,1,2,3,4]
         [--calibrate-on milk] [--turns 4]
         [--before | --without-feature-fit | --without-feature-turn | --without-seeking]
+        [--turn-search-anywhere]
 
 The SLAM benchmark's in-hand world (15 deg turns about z, an odometry 5 % too large, 96
 three-finger actions, 1 mm / 5 deg contacts), run five ways on each seed:
@@ -29,7 +30,9 @@ agree (``TactileSLAM._FEATURE_SCALE`` off);
 ``--without-feature-turn`` without the turn from the handle's angle
 (``TactileSLAM._FEATURE_TURN`` off, the estimator before it); ``--without-seeking``
 without the explorer's value of meeting the handle where that filter expects it
-(``TactileSLAM._FEATURE_SEEK`` off);
+(``TactileSLAM._FEATURE_SEEK`` off); ``--turn-search-anywhere`` with the turn search moving
+the turn on any contact before that filter's first sighting, those well inside the body's
+radius too (``TactileSLAM._TURN_INSIDE`` off);
 ``--before`` also without the corrections counted from the step whose surface they were
 measured against, the scale's robust posterior and the re-anchoring (``_TURN_REF`` and
 ``_SCALE_MIXTURE`` off), in the same processes. Two worker processes; about fifteen
@@ -63,7 +66,7 @@ SETTINGS = (("learned from 1 (`odometry_scale_sd=0.05`, the default)", 1.0, 0.05
 
 
 def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=True, record=None, feature_turn=True,
-               seek=True, turns=4):
+               seek=True, turns=4, inside=True):
     """One in-hand run of the benchmark's world: (object, world, slam, run, orientation
     error per action in degrees, median error per turn of 24 actions).
 
@@ -94,6 +97,8 @@ def inhand_run(mesh, seed, scale, sd, turn_noise=TURN_NOISE, before=False, fit=T
         TactileSLAM._FEATURE_TURN = False
     if not seek:
         TactileSLAM._FEATURE_SEEK = False
+    if not inside:
+        TactileSLAM._TURN_INSIDE = 0.0
     slam = TactileSLAM((lo - 0.03, hi + 0.03), rng=seed, sigma_pos=noise[0], sigma_nor=noise[1],
                        motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, turn_noise),
                        learn_odometry_scale=True, odometry_scale=scale, odometry_scale_sd=sd)
@@ -125,17 +130,18 @@ def _run(args) -> tuple:
 
     from touchloc.mapping import fscore
 
-    mesh, seed, scale, sd, noise, before, fit, feature_turn, seek, n_turns = args
+    mesh, seed, scale, sd, noise, before, fit, feature_turn, seek, n_turns, inside = args
     if isinstance(scale, str):
         # calibration: the same world on another mesh, with the scale learned as by default
         cal = inhand_run(scale, seed, 1.0, 0.05, before=before, fit=fit,
-                         feature_turn=feature_turn, seek=seek, turns=n_turns)[2].calibrate_odometry()
+                         feature_turn=feature_turn, seek=seek, turns=n_turns,
+                         inside=inside)[2].calibrate_odometry()
         scale = cal.scale
         if noise == "calibrated":
             noise = cal.turn_noise
     rec = []
     obj, _, _, run, _, turns = inhand_run(mesh, seed, scale, sd, noise, before, fit, feature_turn=feature_turn,
-                                          seek=seek, turns=n_turns, record=rec)
+                                          seek=seek, turns=n_turns, record=rec, inside=inside)
     online = np.degrees([Rotation.from_matrix(r["est"][:3, :3] @ r["truth"][:3, :3].T).magnitude() for r in rec])
     return (turns[-1] - turns[0], float(fscore(run.map.to_mesh(), obj, 0.005, n=4000)), float(scale), float(noise),
             turns, [float(np.median(online[i * 24:(i + 1) * 24])) for i in range(n_turns)])
@@ -162,6 +168,8 @@ def main(argv=None) -> int:
                     help="the in-hand estimator without the turn from the feature's angle (_feature_turn)")
     ap.add_argument("--without-seeking", action="store_true",
                     help="the explorer without the value of meeting the feature where the filter expects it")
+    ap.add_argument("--turn-search-anywhere", action="store_true",
+                    help="the turn search moving the turn on any contact before the feature's first sighting")
     args = ap.parse_args(argv)
     if args.turns < 1:
         ap.error("--turns must be at least 1")
@@ -174,7 +182,8 @@ def main(argv=None) -> int:
     with ProcessPoolExecutor(2) as ex:
         for label, scale, sd, noise in settings:
             res = list(ex.map(_run, [(args.mesh, s, scale, sd, noise, args.before, not args.without_feature_fit,
-                                      not args.without_feature_turn, not args.without_seeking, args.turns)
+                                      not args.without_feature_turn, not args.without_seeking, args.turns,
+                                      not args.turn_search_anywhere)
                                      for s in seeds]))
             g = np.array([r[0] for r in res])
             f = np.array([r[1] for r in res])
@@ -202,7 +211,8 @@ def main(argv=None) -> int:
     which = (" (the estimator before)" if args.before else
              " (without the feature fit)" if args.without_feature_fit else
              " (without the turn from the feature's angle)" if args.without_feature_turn else
-             " (without seeking the feature)" if args.without_seeking else "")
+             " (without seeking the feature)" if args.without_seeking else
+             " (the turn search on any contact before the feature is seen)" if args.turn_search_anywhere else "")
     print(f"{args.mesh}, seeds {args.seeds}, {args.turns} turns{which}\n")
     print(f"| scale | median growth, turn 1 -> {args.turns} (deg) | runs within 5 / 10 deg | "
           f"75th percentile / worst (deg) | error in turn {args.turns}, median (deg) | "

@@ -66,8 +66,13 @@ def test_the_feature_filter_ignores_the_body_and_gates_stray_contacts():
     assert ft.scale == pytest.approx(1 / 1.05, abs=0.015)
     # a body alone (no contact beyond the median radius by the margin) never starts it
     body = FeatureTurn()
+    q, a = np.zeros(3), np.array([0.0, 0.0, 1.0])
+    probe = np.array([[0.07, 0.0, 0.05], [0.0, 0.03, 0.02], [0.04, 0.0, 0.09]])
+    assert body.radial_offset(probe, q, a) is None
     _run(body, reported, [P[:3] for P in contacts])
     assert not body.started and body.used == 0 and body.scale == 1.0
+    # distances from the axis beyond the body's (40 mm), whatever the height
+    assert np.allclose(body.radial_offset(probe, q, a), [0.03, -0.01, 0.0], atol=1e-9)
 
 
 def test_a_stray_taken_first_for_the_feature_is_outvoted():

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from touchloc.belief import add_s
 from touchloc.errors import ValidationError
 from touchloc.mapping import MovingWorld, ShapeMap, TactileSLAM, chamfer_distance, explore, hand_pool
+from touchloc.mapping._feature_turn import FeatureTurn
 
 
 @pytest.fixture(scope="module")
@@ -500,10 +501,11 @@ def test_smoother_holds_the_turns_it_is_told_to_hold(milk):
     assert np.max(np.linalg.norm(held[:, :3, 3] - est[:, :3, 3], axis=1)) > 5e-4
 
 
-def _inhand_mug_run(seed):
+def _inhand_mug_run(seed, actions=96, errors=False):
     """The SLAM benchmark's in-hand mug (15 deg turns, an odometry 5 % too large, 96
     three-finger actions, the scale learned): the estimator and its median orientation
-    error (deg) within each of the four turns."""
+    error (deg) within each of the four turns (of the actions run); with ``errors``, also the
+    error after each action."""
     from touchloc.data import load_object
 
     with warnings.catch_warnings():
@@ -513,10 +515,34 @@ def _inhand_mug_run(seed):
                         noise_pos=0.001, noise_nor=np.deg2rad(5.0))
     slam = TactileSLAM(_box(mug, 0.03), motion=(0.0005, np.deg2rad(0.5)), odometry_noise=(0.0005, np.deg2rad(1.5)),
                        learn_odometry_scale=True, sigma_pos=0.001, sigma_nor=np.deg2rad(5.0), rng=seed)
-    explore(world, _box(mug, 0.06), 96, slam=slam, fingers=3, rng=seed)
+    explore(world, _box(mug, 0.06), actions, slam=slam, fingers=3, rng=seed)
     ang = np.array([np.degrees(Rotation.from_matrix(a[:3, :3] @ b[:3, :3].T).magnitude())
                     for a, b in zip(slam.trajectory[1:], world.trajectory[1:])])
-    return slam, [np.median(ang[i * 24:(i + 1) * 24]) for i in range(4)]
+    per_turn = [np.median(ang[i * 24:(i + 1) * 24]) for i in range(-(-actions // 24))]
+    return (slam, per_turn, ang) if errors else (slam, per_turn)
+
+
+def test_in_hand_turn_search_ignores_contacts_inside_the_body_before_the_feature(monkeypatch):
+    """Before the handle's filter has a sighting, a contact well inside the body's radius
+    does not move the turn. On this seed two touches of the mug's inner wall at action 32,
+    where the map (a few touches of a thin wall) is not yet round, made the turn search
+    move the turn by 45 deg, to 68 deg off; the odometry's drift alone is 26 deg there."""
+    inside = []
+    offset = FeatureTurn.radial_offset
+
+    def spied(self, points, q, a):
+        out = offset(self, points, q, a)
+        if out is not None:
+            inside.append(int(np.sum(out < -TactileSLAM._TURN_INSIDE)))
+        return out
+
+    monkeypatch.setattr(FeatureTurn, "radial_offset", spied)
+    slam, _, err = _inhand_mug_run(75, actions=34, errors=True)
+    # the search was asked about contacts inside the body, and moved nothing
+    assert sum(inside) >= 1
+    assert not slam._feature_turn.started and not slam.info.get("turn_search")
+    # the error is the odometry's drift (5 % of 15 deg an action, and the turn noise)
+    assert err[-1] < 35.0 and np.all(np.diff(err[28:]) < 5.0)
 
 
 def test_in_hand_mug_turn_held_by_its_handle(monkeypatch):

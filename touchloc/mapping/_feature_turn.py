@@ -180,6 +180,14 @@ class FeatureTurn:
         r = y - np.outer(z, a)
         return r, np.linalg.norm(r, axis=1), z
 
+    def radial_offset(self, points, q, a):
+        """(k,) how far each of ``points`` (k, 3) lies beyond the median distance from the
+        axis (through ``q`` along unit ``a``) of the contacts counted so far (m; negative
+        inside it); None while fewer than ``min_contacts`` contacts have been counted."""
+        if len(self._rho) < self.min_contacts:
+            return None
+        return self._about(points, q, a)[1] - np.median(self._rho)
+
     def _features(self, points, q, a):
         """``(angles, rho, z)``: the world angles about the axis (through ``q`` along unit
         ``a``) of the feature contacts among ``points`` (k, 3), their distances from the axis
