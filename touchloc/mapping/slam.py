@@ -593,7 +593,7 @@ class TactileSLAM:
                     and use.any():
                 # before the feature's filter has a sighting, a contact well inside the body's
                 # radius does not show the turn: there the map is the least sure (a mug's inner
-                # wall, mapped from a few touches, moved the turn by 21-45 deg)
+                # wall, mapped from a few touches, moved the turn by 18-45 deg)
                 off = ft.radial_offset((c.points[use] - T0[:3, 3]) @ T0[:3, :3], *self._turn_frame)
                 if off is not None:
                     use[np.flatnonzero(use)[off < -self._TURN_INSIDE]] = False
