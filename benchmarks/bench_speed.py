@@ -144,7 +144,7 @@ NOTE = ('Where the time went at the baseline (cProfile of the mug at 5 contacts)
         ' Those figures predate c4304ab, whose temperature schedule keeps more particles with many contacts s'
         'o that the prune does not drop the true mode (section "Scaling Series\' annealing with many contacts'
         '"). On the mug at 30 contacts (seed 8001, 2 threads, an idle machine, 2026-11-29) the commit before '
-        'it evaluates 15,077 poses, c4304ab 54,254, and the current tree, with the particle cap since, 39,791'
+        'it evaluates 15,077 poses, c4304ab 54,254, and the current tree, after the changes since (the particle cap among them), 39,791'
         ': 0.73 s a localisation, against 0.33 s for d9bfce1 on the same machine the same day.'
         '\n\nThen the fast likelihood near the surface (docs/localization.md, "Measurement models"): the '
         'finest level\'s cells within three cells of the surface keep, per normal bin of a cube map (384 '
