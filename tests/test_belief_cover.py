@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from touchloc import TouchlocError
 from touchloc.belief import PoseRegion, ScalingSeries
 from touchloc.belief import _cover
 from touchloc.belief._cover import accept_draws, ball_counts
@@ -224,6 +225,38 @@ def test_annealed_likelihood_prunes_exactly_like_a_full_evaluation(mug, k):
         np.testing.assert_allclose(part[keep], full[keep], rtol=1e-12, atol=1e-9)
         if tau == 1.0:
             assert np.sum(part > full + 1e-6) > 0  # some particles were left unfinished
+
+
+def test_wide_scales_are_scored_on_the_bound_table(mug):
+    """At an intermediate scale at least ``bound_scales`` slacks wide a particle's annealed
+    log-likelihood is its table bounds' (never below the exact value); at a narrower one,
+    at the last scale or with ``bound_scales=None`` it is the exact evaluation's."""
+    rng = np.random.default_rng(3)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full").with_rho(mug.radius)
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = mug.sample_surface(20, rng=rng)
+    from touchloc.models import Contacts
+
+    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    X = region.perturb(np.repeat(true[None], 2000, axis=0), 0.05, rng=rng, ball=False)
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    slack = model._bound_slack(contacts)
+    tau = 200.0
+    table = -0.5 * model._lower_costs(X, contacts).sum(axis=1) / tau
+    full = model.log_likelihood(X, contacts, temperature=tau)
+    on, off = ScalingSeries(model, rng=0), ScalingSeries(model, rng=0, bound_scales=None)
+    assert on.bound_scales == 2.0
+    np.testing.assert_array_equal(on._annealed_loglik(X, contacts, tau, delta=2.0 * slack), table)
+    assert np.all(table >= full - 1e-9) and np.any(table > full + 1.0)
+    for ss, delta, prune in ((on, 1.9 * slack, False), (on, 1.9 * slack, True), (off, 10 * slack, True),
+                             (on, 10 * slack, False)):
+        got = ss._annealed_loglik(X, contacts, tau, prune=prune, delta=delta)
+        keep = full >= full.max() + np.log(ss.prune_ratio)
+        np.testing.assert_allclose(got[keep], full[keep], rtol=1e-12, atol=1e-9)
+    with pytest.raises(TouchlocError):
+        ScalingSeries(model, bound_scales=-1.0)
+    with pytest.raises(TouchlocError):
+        ScalingSeries(model, bound_scales=float("nan"))
 
 
 def test_compiled_box_and_parent_tests_match_numpy_bit_for_bit(rng):

@@ -672,6 +672,41 @@ def test_the_bound_table_never_exceeds_the_exact_cost(objects, rng, name, normal
         assert far.sum() > 100 and np.median(lower[far] / exact[far]) > 0.2  # a bound that prunes
 
 
+@pytest.mark.parametrize("name", ["mug", "lemon"])
+def test_a_bound_is_the_cost_dilated_by_at_most_twice_the_slack(objects, rng, name):
+    """On the table's grid, sqrt(bound) >= sqrt(cost) - 2 slack (the cost of the nearest
+    surface point within 2 slack in the joint metric), and the slack is tight: some
+    queries come within a fifth of it."""
+    from touchloc.models._bounds import BINS, _bin_of, bin_reach, cube_map_dirs
+
+    obj = objects[name]
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 12, true, pos_noise=0.004, nor_noise=0.3)
+    v = np.concatenate([rng.uniform(-0.03, 0.03, (300, 3)), rng.normal(scale=0.3, size=(300, 3))], axis=1)
+    poses = geometry.vector_to_pose(v) @ true
+    s2 = model.sigma_pos**2
+    exact = model._budget_costs(poses, contacts, "exact")[0] * s2  # m^2
+    lower = model._lower_costs(poses, contacts) * s2
+    bound = model._bound(model._weight(True))
+    slack = model._bound_slack(contacts)
+    assert slack == bound.slack > 0.5 * np.sqrt(3.0) * bound.h
+    # the object-frame contacts on the table's grid (beyond it the bound is the box's distance)
+    local = np.einsum("nji,nkj->nki", poses[:, :3, :3], contacts.points[None] - poses[:, None, :3, 3])
+    on = np.all((local >= bound.lo) & (local < bound.lo + bound.shape * bound.h), axis=2)
+    on &= exact < model.cost_cap * s2  # uncapped
+    assert on.sum() > 1000
+    assert np.all(np.sqrt(lower[on]) >= np.sqrt(exact[on]) - 2.0 * slack - 1e-12)
+    assert np.any(np.sqrt(exact[on]) - np.sqrt(lower[on]) > 0.2 * slack)
+    # the bins' reach: no direction is farther from its bin's centre (sampled)
+    n = rng.normal(size=(20000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    d = cube_map_dirs(BINS)
+    own = np.array([_bin_of(x, y, z, BINS) for x, y, z in n])
+    reach = np.linalg.norm(n - d[own], axis=1)
+    assert reach.max() <= bin_reach(BINS) < 1.03 * reach.max()
+
+
 def test_costs_stopped_by_their_bounds_still_reach_the_budget(objects, rng):
     """With lower bounds, a pose stops as soon as its costs so far plus its remaining
     bounds reach the budget: its row then sums to at least the budget and no entry exceeds

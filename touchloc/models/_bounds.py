@@ -9,19 +9,23 @@ every query near them from below:
 
     J(x, n) >= max(0, sqrt(J(c, b)) - sqrt(|x - c|^2 + w |n - b|^2))^2.
 
-The table holds sqrt(J) at the centres of a grid of cells around the mesh (a sixteenth of
+The table holds sqrt(J) at the centres of a grid of cells around the mesh (a twelfth of
 its largest extent, out to half an extent beyond it) for the centre directions of a cube
-map's bins (four by four per face); a query uses its cell and its normal's bin. Beyond the
-grid the bound is the squared distance to the mesh's bounding box. Position-only costs use
-one "direction" and w = 0.
+map's bins (three by three per face); a query uses its cell and its normal's bin. Beyond
+the grid the bound is the squared distance to the mesh's bounding box. Position-only costs
+use one "direction" and w = 0.
 
 Scaling Series uses the bound to drop particles whose bound already exceeds the prune
 threshold (no closest-face search at all) and to stop a particle's evaluation as soon as
-its exact costs so far plus the bounds of its remaining contacts reach the threshold.
+its exact costs so far plus the bounds of its remaining contacts reach the threshold. At
+its wide scales it scores particles on the bounds alone (``ScalingSeries(bound_scales=)``):
+a bound is the cost dilated by at most twice the table's slack (:attr:`CostBound.slack`),
+less than the scale's own radius there.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba as nb
@@ -57,6 +61,17 @@ class CostBound:
     box_hi: np.ndarray
     w: float  # normal weight (0: position only)
 
+    @property
+    def slack(self) -> float:
+        """The largest distance (m, in the metric sqrt(|dx|^2 + w |dn|^2)) from a query on
+        the grid to the cell centre and bin direction its bound is read at: the half
+        diagonal of a cell and the widest bin's reach. With D = sqrt(J) the distance to the
+        surface's points (x_f, n_f) in that metric and r a query's distance from its centre,
+        D(centre) - r >= D(query) - 2 r, so the bound lies between the query's cost and that
+        cost dilated by 2 r <= 2 slack (the smallest cost within 2 r of the query)."""
+        half_diagonal = 0.5 * np.sqrt(3.0) * self.h
+        return float(np.sqrt(half_diagonal**2 + self.w * bin_reach(BINS) ** 2))
+
 
 def cube_map_dirs(b: int) -> np.ndarray:
     """(6 b^2, 3) unit directions at the centres of a cube map's bins (face-major, the
@@ -74,6 +89,26 @@ def cube_map_dirs(b: int) -> np.ndarray:
             out.append(d)
     d = np.vstack(out)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=None)
+def bin_reach(b: int) -> float:
+    """The largest chord |n - d| between a unit direction n and the centre direction d of
+    its cube-map bin (b bins per face edge): a bin's sides are great circles, so its
+    farthest points from the centre are its corners."""
+    dirs = cube_map_dirs(b).reshape(6, b, b, 3)
+    t = np.linspace(-1.0, 1.0, b + 1)
+    reach = 0.0
+    for f, (ax, sign) in enumerate((a, s) for a in range(3) for s in (1.0, -1.0)):
+        o0, o1 = [a for a in range(3) if a != ax]
+        for i in range(b):
+            for j in range(b):
+                for u in t[i:i + 2]:
+                    for v in t[j:j + 2]:
+                        c = np.zeros(3)
+                        c[ax], c[o0], c[o1] = sign, u, v
+                        reach = max(reach, float(np.linalg.norm(c / np.linalg.norm(c) - dirs[f, i, j])))
+    return reach
 
 
 @nb.njit(inline="always", **_NB)

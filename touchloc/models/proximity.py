@@ -200,6 +200,12 @@ class ProximityModel(MeasurementModel):
             self.obj._cache[key] = bound
         return bound
 
+    def _bound_slack(self, contacts) -> float:
+        """How far (m, in the joint metric) the bound table's lower bound can dilate a
+        contact's cost for these contacts (see :attr:`touchloc.models._bounds.CostBound.slack`)."""
+        use_n = contacts.normals is not None and self.sigma_nor is not None
+        return self._bound(self._weight(use_n)).slack
+
     def _lower_costs(self, poses, contacts):
         """(N, K) lower bounds of :meth:`contact_costs` (d_M^2, capped like it) of trusted
         poses, from the table (:mod:`touchloc.models._bounds`): a lookup per pair."""
