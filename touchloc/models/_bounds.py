@@ -20,7 +20,7 @@ threshold (no closest-face search at all) and to stop a particle's evaluation as
 its exact costs so far plus the bounds of its remaining contacts reach the threshold. At
 its wide scales it scores particles on the bounds alone (``ScalingSeries(bound_scales=)``):
 a bound is the cost dilated by at most twice the table's slack (:attr:`CostBound.slack`),
-less than the scale's own radius there.
+no wider than the scale's own radius there.
 """
 
 from __future__ import annotations
