@@ -325,3 +325,123 @@ def test_the_draws_are_the_same_on_one_thread_and_on_many(rng):
     t, q, emb = outs[0]
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0) and np.all(q[:, 3] >= 0)
     assert np.array_equal(emb[:, 3:], 0.2 * q)
+
+
+def _metric_distances(region, centres, X):
+    """(len(X), len(centres)) distances in the metric the cover's balls are drawn in
+    (:meth:`PoseRegion.perturb`): translation and rho times the rotation angle between."""
+    from scipy.spatial.transform import Rotation
+
+    free = region.free_translation
+    dt = X[:, None, :3, 3][..., free] - centres[None, :, :3, 3][..., free]
+    d2 = np.sum(dt**2, axis=-1)
+    if region.rotation == "full":
+        rel = np.einsum("nji,mjk->nmik", centres[:, :3, :3], X[:, :3, :3])  # R_c^T R_x
+        ang = Rotation.from_matrix(rel.reshape(-1, 3, 3)).magnitude().reshape(len(X), len(centres))
+        d2 = d2 + (region.rho * ang) ** 2
+    elif region.rotation == "yaw":
+        dy = region.yaw_of(X)[:, None] - region.yaw_of(centres)[None, :]
+        if region.periodic_yaw:
+            dy = (dy + np.pi) % (2 * np.pi) - np.pi
+        d2 = d2 + (region.rho * dy) ** 2
+    return np.sqrt(d2)
+
+
+@pytest.mark.parametrize("rotation, yaw_range, wide", [("full", None, 0.7), ("yaw", (-np.pi, np.pi), 0.5),
+                                                       ("yaw", (0.0, 2.0), 0.5), ("fixed", None, 0.5)])
+def test_covered_cells_lie_inside_the_balls(rotation, yaw_range, wide):
+    """Every pose of a cell the grid calls covered is within r of a centre (the metric the
+    balls are drawn in), whether or not the cell holds a centre itself."""
+    from touchloc.belief.scaling_series import _CellCover
+
+    rng = np.random.default_rng(5)
+    kw = {} if yaw_range is None else {"yaw_range": yaw_range}
+    rot = np.eye(3) if rotation == "fixed" else rotation
+    region = PoseRegion.box((0.01, 0.0, -0.02), (0.2, 0.15, 0.1), rot, rho=0.05, **kw)
+    X = region.sample(3000, rng=rng)
+    centres = X[X[:, 0, 3] < -0.05][:200]   # a third of the region holds the centres
+    r = wide * region.radius()
+    cells = _CellCover(region, centres, r)
+    assert 0.0 < cells.fraction < 1.0
+    occupied = np.unique(cells.cells(centres))
+    assert np.any(~np.isin(np.flatnonzero(cells.covered), occupied))   # reach, not occupancy alone
+    Q = region.sample(3000, rng=rng)
+    q = cells.cells(Q)
+    inside = cells.covered[q]
+    assert inside.sum() > 300
+    d = _metric_distances(region, centres, Q[inside]).min(axis=1)
+    assert d.max() <= r * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("rotation, wide", [("full", 0.9), ("yaw", 0.8)])
+def test_the_region_cover_matches_the_reference_where_the_balls_hold_most_of_the_region(mug, rotation, wide):
+    """Where a union of wide balls holds most of the region, the cover draws the region and
+    keeps what lies in the union: where the particles lie, and (yaw) the union's volume,
+    are those of the reference's rejection sampler (draws from the balls, kept with
+    probability 1 / count), and it keeps the floor where the sampler kept a handful.
+
+    With full rotations the balls are wider than pi rho: a draw's rotation vector wraps
+    around, and the reference's counts (in the quaternion embedding, where a centre and
+    its flipped copy may both hold a draw) no longer undo its draw density, so it thins
+    the union's far side. There the particles are compared with uniform draws of the
+    region kept by a brute-force test of the same union. A yaw range (0, 2 rad) has no
+    wrap: there the reference is the comparison."""
+    from touchloc.belief.scaling_series import _CellCover
+
+    kw = {"yaw_range": (0.0, 2.0), "rho": mug.radius} if rotation == "yaw" else {"rho": mug.radius}
+    region = PoseRegion.box((0, 0, 0), 0.2, rotation, **kw)
+    rng = np.random.default_rng(6)
+    X = region.sample(4000, rng=rng)
+    centres = X[X[:, 0, 3] < -0.1][:300]   # the union reaches past x = 0, not to x = 0.2
+    r = wide * region.radius()
+    d = r * 2 ** (-1 / region.dim)
+    cells = _CellCover(region, centres, r)
+    assert 0.5 <= cells.fraction < 1.0   # the region cover is used, and asks the tree
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    ss_new = ScalingSeries(model, rng=0)
+    ss_ref = ScalingSeries(model, rng=0, max_draws=10**6)   # every draw of the reference, uncapped
+    vol_new, vol_ref, x_new, x_ref = [], [], [], []
+    tree = cKDTree(region.embed(centres))
+    for s in range(30):
+        ss_new.rng, ss_ref.rng = np.random.default_rng(s), np.random.default_rng(1000 + s)
+        P, v = ss_new._even_density_cover(region, centres, r, d)
+        Q, w = ss_ref._even_density_cover_reference(region, centres, r, d)
+        assert len(P) >= ss_new.min_particles
+        dist = tree.query(region.embed(P))[0]
+        if rotation == "full":
+            dist = np.minimum(dist, tree.query(region.embed_flipped(P))[0])
+        assert dist.max() <= r * (1 + 1e-6)
+        vol_new.append(v), vol_ref.append(w), x_new.append(P[:, 0, 3]), x_ref.append(Q[:, 0, 3])
+    if rotation == "yaw":
+        assert np.mean(vol_new) == pytest.approx(np.mean(vol_ref), rel=0.05)
+    x_new, x_ref = np.concatenate(x_new), np.concatenate(x_ref)
+    assert len(x_ref) < 0.5 * len(x_new)     # the reference kept a few per cover
+    if rotation == "full":
+        Y = region.sample(20000, rng=np.random.default_rng(99))
+        C = region.embed(centres)
+        d2 = np.minimum(
+            *[np.sum(E**2, 1)[:, None] + np.sum(C**2, 1)[None, :] - 2.0 * E @ C.T
+              for E in (region.embed(Y), region.embed_flipped(Y))]).min(axis=1)
+        x_ref = Y[d2 <= r * r, 0, 3]
+    # the share of the union's far side in x as in the comparison
+    far_new, far_ref = np.mean(x_new > 0.05), np.mean(x_ref > 0.05)
+    se = np.sqrt(far_ref * (1 - far_ref) / len(x_ref) + far_new * (1 - far_new) / len(x_new))
+    assert 0.05 < far_ref < 0.95 and abs(far_new - far_ref) < 4 * se
+
+
+def test_the_first_cover_after_the_uniform_start_keeps_the_floor(mug):
+    """The first scale's balls hold the region: its cover is a uniform draw of the region
+    with at least ``min_particles`` particles (the rejection sampler had kept 3-5)."""
+    rng = np.random.default_rng(7)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full")
+    true = region.with_rho(mug.radius).sample(1, rng=rng)[0]
+    p, n, _ = mug.sample_surface(10, rng=rng)
+    from touchloc.models import Contacts
+
+    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    for s in range(3):
+        steps = ScalingSeries(model, rng=s, progress=False).iterate(contacts, region)
+        next(steps)
+        first = next(steps)
+        assert first.n_particles >= 50

@@ -152,6 +152,16 @@ class PoseRegion:
             v *= self.yaw_span * self._rho()
         return v
 
+    def _metric_volume(self) -> float:
+        """Volume in the pose metric's own measure, the one a metric ball's volume
+        (``ball_volume``) is in: with rotations at rho times their angle apart, SO(3)
+        holds 8 pi^2 rho^3 (its Haar measure, which near the identity is the rotation
+        vectors' volume). :meth:`volume` gives pi^2 rho^3 for full rotations (the unit
+        quaternions' measure, a constant factor 8 below); it is kept, as the particle
+        filter's resolution and the evidence's normalisation were set with it (a constant
+        factor cancels between objects in :func:`~touchloc.belief.identify`)."""
+        return self.volume() * (8.0 if self.rotation == "full" else 1.0)
+
     def __repr__(self) -> str:
         rot = self.rotation if self.rotation != "yaw" else f"yaw {np.degrees(self.yaw_range).round(1).tolist()} deg"
         return (f"PoseRegion(center={self.center.round(4).tolist()}, half_extent="

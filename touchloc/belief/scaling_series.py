@@ -279,9 +279,18 @@ class ScalingSeries:
         per scale). Where the particle cap binds, the draws come in batches that stop
         once the cap can be filled (:meth:`_next_batch`). The distribution is that of
         :meth:`_even_density_cover_reference`.
+
+        Where the balls are at least half as wide as the region and hold at least half of
+        it by a grid test (:class:`_CellCover`; the first scale after the uniform start),
+        the region is drawn instead and each draw kept where it lies in the union
+        (:meth:`_region_cover`).
         """
         dim = region.dim
         rng = self.rng
+        if self._REGION_COVER and delta_prev >= 0.5 * region.radius():
+            cells = _CellCover(region, centers, delta_prev)
+            if cells.fraction >= 0.5:
+                return self._region_cover(region, centers, delta_prev, delta, sym, cells)
         n_c = len(centers)
         pick, rounds = self._pick_centres(n_c, dim, delta_prev, delta)
         flip = 4 if region.rotation == "full" else 0
@@ -323,6 +332,60 @@ class ScalingSeries:
             if len(mine):
                 out.append(draws.poses(idx[mine]))
         return np.concatenate(out), volume
+
+    #: wide unions that hold most of the region are covered by :meth:`_region_cover`
+    #: (False: the rejection sampler at every scale, as before; for A/B studies)
+    _REGION_COVER = True
+
+    def _region_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float, sym, cells):
+        """The even-density cover of a union of balls that holds most of the region: a
+        uniform draw of the region, each pose kept when it lies in the union (at once in
+        a covered cell of ``cells``, else where some centre is within ``delta_prev`` of it
+        in the embedding the ball counts use), m per delta-ball of the union's volume
+        (within the floor and the cap). Returns poses and the estimated volume.
+
+        The rejection sampler of :meth:`_even_density_cover` draws from the balls and keeps
+        a draw with probability 1 / (balls containing it), which is uniform on the union.
+        Where the balls are about as wide as the region (the first scale, each draw in
+        nearly every ball) it kept 3-5 of tens of thousands of draws, every one of them
+        counted, so the floor (``min_particles``) was out of reach there. And with full
+        rotations such balls are wider than pi rho: a draw's rotation vector wraps around,
+        and the counts no longer undo the draw density, so that sampler thinned the
+        union's far side (tests/test_belief_cover.py). Here at least half the draws are
+        kept, and the particles are uniform on the union.
+        """
+        rng = self.rng
+        tree, flip = None, region.rotation == "full"
+        most = self._target(self.m * region._metric_volume() / ball_volume(region.dim, delta))
+        kept, n_drawn, n_kept = [], 0, 0
+        while True:
+            n = min(max(256, int(np.ceil(1.25 * (most - n_kept)))), self.max_draws - n_drawn)
+            X = self._canonical(region, sym, region.sample(n, rng=rng))
+            c = cells.cells(X)
+            ok = c >= 0
+            ok[ok] = cells.covered[c[ok]]
+            ask = np.flatnonzero(~ok & (c >= 0))
+            if len(ask):
+                if tree is None:
+                    tree = cKDTree(region.embed(centers))
+                r = delta_prev * 1.0000001
+                d = tree.query(region.embed(X[ask]), distance_upper_bound=r)[0]
+                if flip:
+                    d = np.minimum(d, tree.query(region.embed_flipped(X[ask]), distance_upper_bound=r)[0])
+                ok[ask] = d <= r
+            kept.append(X[ok])
+            n_drawn, n_kept = n_drawn + len(X), n_kept + int(ok.sum())
+            volume = region._metric_volume() * n_kept / n_drawn
+            target = self._target(self.m * volume / ball_volume(region.dim, delta))
+            if n_kept >= target or n_drawn >= self.max_draws:
+                break
+        self._acceptance = None  # not the rate of ball draws: the next scale measures its own
+        if n_kept == 0:  # (a draw budget of a handful, all outside the union): keep the centres
+            return centers.copy(), volume
+        X = np.concatenate(kept)
+        if len(X) > target:
+            X = X[rng.choice(len(X), target, replace=False)]
+        return X, volume
 
     @property
     def _floor(self) -> int:
@@ -687,6 +750,61 @@ def _plain_proximity(model) -> bool:
     costs can then be evaluated through the unvalidated, budgeted kernel pass."""
     return (isinstance(model, ProximityModel) and type(model).log_likelihood is ProximityModel.log_likelihood
             and type(model).contact_costs is ProximityModel.contact_costs)
+
+
+class _CellCover:
+    """The cells of a grid over a region that lie wholly inside a union of metric balls.
+
+    Each free translation axis of the region, and a yaw range, is cut into ``parts``
+    equal cells. A ball around a pose in cell A holds cell B whole when the largest
+    distance between their points, summed over the axes in the pose metric, is at most
+    r^2 less what the rotation may need ((pi rho)^2 for full rotations: any two rotations
+    are at most pi apart). A cell is covered when a cell that holds a centre holds it so:
+    a sufficient test, in the metric the balls are drawn in (:meth:`PoseRegion.perturb`).
+    """
+
+    def __init__(self, region: PoseRegion, centers, r: float, parts: int = 6):
+        self.region, self.parts = region, parts
+        free = region.free_translation
+        size = 2.0 * np.asarray(region.half_extent, dtype=float)[free] / parts
+        reach2 = r * r
+        if region.rotation == "full":
+            reach2 -= (np.pi * region._rho()) ** 2
+        elif region.rotation == "yaw":
+            size = np.append(size, region.yaw_span * region._rho() / parts)
+        self.k = k = len(size)
+        self.covered = np.zeros(parts**k, dtype=bool)
+        # (a ball that cannot hold even its own centre's cell covers nothing)
+        if len(centers) == 0 or reach2 < float(np.sum(size**2)):
+            return
+        # row c of the grid is the cell whose code (see cells) is c
+        grid = (np.arange(parts**k)[:, None] // parts ** np.arange(k)) % parts
+        occupied = np.unique(self.cells(np.asarray(centers)))
+        occupied = occupied[occupied >= 0]
+        if len(occupied) == 0:
+            return
+        gap = np.abs(grid[:, None, :] - grid[None, occupied, :])
+        if region.rotation == "yaw" and region.periodic_yaw:
+            gap[..., -1] = np.minimum(gap[..., -1], parts - gap[..., -1])
+        self.covered = ((((gap + 1) * size) ** 2).sum(axis=-1) <= reach2).any(axis=1)
+
+    @property
+    def fraction(self) -> float:
+        """The share of the region's volume in covered cells."""
+        return float(self.covered.mean())
+
+    def cells(self, P) -> np.ndarray:
+        """(N,) the grid cell of each pose of the region (-1: outside it)."""
+        region, parts = self.region, self.parts
+        free = region.free_translation
+        inside = region._contains(P)   # (the series' own rigid poses: no re-validation)
+        lo = (region.center - region.half_extent)[free]
+        x = (P[:, :3, 3][:, free] - lo) / (2.0 * region.half_extent[free]) * parts
+        if region.rotation == "yaw":
+            y0, y1 = region.yaw_range
+            x = np.column_stack([x, (region.yaw_of(P) - y0) / (y1 - y0) * parts])
+        idx = np.clip(np.floor(x), 0, parts - 1).astype(np.int64) @ (parts ** np.arange(self.k, dtype=np.int64))
+        return np.where(inside, idx, -1)
 
 
 class _Draws:
