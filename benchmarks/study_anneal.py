@@ -81,6 +81,8 @@ def _one(job):
         ss = ScalingSeries(model, anneal=anneal, rng=seed, progress=False, **extra)
         if cover == "sampler":
             ss._REGION_COVER = False
+        if cover.startswith("steps"):
+            ss.bound_steps = int(cover[5:])
         b = ss.localize(c, region)
         cpu = time.process_time() - t0
         ll_true, ll_map = model.log_likelihood(np.stack([true, b.map_pose()]), c)

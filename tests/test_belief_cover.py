@@ -259,6 +259,38 @@ def test_wide_scales_are_scored_on_the_bound_table(mug):
         ScalingSeries(model, bound_scales=float("nan"))
 
 
+def test_the_table_scales_take_bound_steps_of_alg1_at_a_time(mug):
+    """With ``bound_steps=k`` the scales at least ``bound_scales`` slacks wide are every
+    k-th of Alg. 1's (a delta-ball's volume shrinks 2^k-fold between them); the narrower
+    scales, and every scale without the table, are Alg. 1's own."""
+    from touchloc.models import Contacts
+
+    rng = np.random.default_rng(8)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full")
+    true = region.with_rho(mug.radius).sample(1, rng=rng)[0]
+    p, n, _ = mug.sample_surface(10, rng=rng)
+    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    model = ProximityModel(mug, 0.002, np.deg2rad(5))
+    wide = 2.0 * model._bound_slack(contacts)
+
+    def deltas(**kw):
+        ss = ScalingSeries(model, rng=0, progress=False, final_moves=0, **kw)
+        return np.array([st.delta for st in ss.iterate(contacts, region)])
+
+    alg1 = deltas(bound_steps=1)
+    assert np.allclose(np.diff(np.log(alg1[:-1])), -np.log(2) / 6)   # Alg. 1: 2^(-1/6) per scale
+    for k in (2, 3):
+        got = deltas(bound_steps=k)
+        inner = alg1[:-1]
+        expect = np.concatenate([inner[inner >= wide][::k], inner[inner < wide], alg1[-1:]])
+        np.testing.assert_array_equal(got, expect)
+        assert len(got) < len(alg1)
+    np.testing.assert_array_equal(deltas(bound_steps=2, bound_scales=None), deltas(bound_steps=1, bound_scales=None))
+    for bad in (0, -1, 2.5, float("nan"), "two", 17):
+        with pytest.raises(TouchlocError):
+            ScalingSeries(model, bound_steps=bad)
+
+
 def test_compiled_box_and_parent_tests_match_numpy_bit_for_bit(rng):
     from touchloc.belief._cover import _beyond, in_box
 
