@@ -222,6 +222,19 @@ def _holds_nan(x) -> bool:
     return bool(np.isnan(a).any())
 
 
+def _timed(fn, args, kwargs, seconds):
+    """fn(*args, **kwargs) within ``seconds``. The alarm's CallTimeout, raised while
+    compiled code runs, can come back as a SystemError ("returned a result with an
+    exception set") whose cause it is: that is the timeout, not an error of fn."""
+    with np.errstate(all="ignore"), time_limit(seconds):
+        try:
+            return fn(*args, **kwargs)
+        except SystemError as exc:
+            if isinstance(exc.__cause__, CallTimeout):
+                raise exc.__cause__ from None
+            raise
+
+
 def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT, extra=None):
     """One hostile call: returns ('ok' | 'error' | 'raw' | 'hang' | 'nan', detail).
 
@@ -235,13 +248,11 @@ def run_one(fn, params, target, bad, time_limit_s=TIME_LIMIT, extra=None):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                with np.errstate(all="ignore"), time_limit(time_limit_s):
-                    out = fn(*args, **kwargs)
+                out = _timed(fn, args, kwargs, time_limit_s)
             except CallTimeout:
                 # a slow call on a loaded machine is not a hang: once more, with ten times
                 # the time, before it counts as one
-                with np.errstate(all="ignore"), time_limit(HANG_RETRY * time_limit_s):
-                    out = fn(*args, **kwargs)
+                out = _timed(fn, args, kwargs, HANG_RETRY * time_limit_s)
     except CallTimeout as exc:
         return "hang", str(exc)
     except TouchlocError:
