@@ -25,6 +25,18 @@ def _cluster(region, n, spread, rng):
     return region.perturb(np.repeat(ref, n, axis=0), spread, rng=rng, ball=False)
 
 
+def _touched(mug, k, seed):
+    """A 400 mm cube with full rotations, and k contacts (2 mm noise) on the mug at a pose
+    drawn in it."""
+    from touchloc.models import Contacts
+
+    rng = np.random.default_rng(seed)
+    region = PoseRegion.box((0, 0, 0), 0.2, "full")
+    true = region.with_rho(mug.radius).sample(1, rng=rng)[0]
+    p, n, _ = mug.sample_surface(k, rng=rng)
+    return region, Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+
+
 def _kdtree_counts(region, centres, draws, r):
     tree = cKDTree(region.embed(centres))
     c = tree.query_ball_point(region.embed(draws), r * 1.0000001, return_length=True)
@@ -263,13 +275,7 @@ def test_the_table_scales_take_bound_steps_of_alg1_at_a_time(mug):
     """With ``bound_steps=k`` the scales at least ``bound_scales`` slacks wide are every
     k-th of Alg. 1's (a delta-ball's volume shrinks 2^k-fold between them); the narrower
     scales, and every scale without the table, are Alg. 1's own."""
-    from touchloc.models import Contacts
-
-    rng = np.random.default_rng(8)
-    region = PoseRegion.box((0, 0, 0), 0.2, "full")
-    true = region.with_rho(mug.radius).sample(1, rng=rng)[0]
-    p, n, _ = mug.sample_surface(10, rng=rng)
-    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    region, contacts = _touched(mug, 10, 8)
     model = ProximityModel(mug, 0.002, np.deg2rad(5))
     wide = 2.0 * model._bound_slack(contacts)
 
@@ -464,13 +470,7 @@ def test_the_region_cover_matches_the_reference_where_the_balls_hold_most_of_the
 def test_the_first_cover_after_the_uniform_start_keeps_the_floor(mug):
     """The first scale's balls hold the region: its cover is a uniform draw of the region
     with at least ``min_particles`` particles (the rejection sampler had kept 3-5)."""
-    rng = np.random.default_rng(7)
-    region = PoseRegion.box((0, 0, 0), 0.2, "full")
-    true = region.with_rho(mug.radius).sample(1, rng=rng)[0]
-    p, n, _ = mug.sample_surface(10, rng=rng)
-    from touchloc.models import Contacts
-
-    contacts = Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true)
+    region, contacts = _touched(mug, 10, 7)
     model = ProximityModel(mug, 0.002, np.deg2rad(5))
     for s in range(3):
         steps = ScalingSeries(model, rng=s, progress=False).iterate(contacts, region)
