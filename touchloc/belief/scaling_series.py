@@ -801,16 +801,23 @@ class _CellCover:
         # (a ball that cannot hold even its own centre's cell covers nothing)
         if len(centers) == 0 or reach2 < float(np.sum(size**2)):
             return
-        # row c of the grid is the cell whose code (see cells) is c
-        grid = (np.arange(parts**k)[:, None] // parts ** np.arange(k)) % parts
         occupied = np.unique(self.cells(np.asarray(centers)))
         occupied = occupied[occupied >= 0]
         if len(occupied) == 0:
             return
-        gap = np.abs(grid[:, None, :] - grid[None, occupied, :])
-        if region.rotation == "yaw" and region.periodic_yaw:
-            gap[..., -1] = np.minimum(gap[..., -1], parts - gap[..., -1])
-        self.covered = ((((gap + 1) * size) ** 2).sum(axis=-1) <= reach2).any(axis=1)
+        # the least farthest-point distance^2 from each cell to an occupied one: a sum of one
+        # term per axis, so its minimum is taken one axis at a time (as a distance transform)
+        D = np.full(parts**k, np.inf)
+        D[occupied] = 0.0
+        D = D.reshape((parts,) * k, order="F")   # D[i0, i1, ...] is the cell of code sum(i_a parts^a)
+        g = np.arange(parts)
+        for a in range(k):
+            gap = np.abs(g[:, None] - g[None, :])
+            if a == k - 1 and region.rotation == "yaw" and region.periodic_yaw:
+                gap = np.minimum(gap, parts - gap)
+            step = ((gap + 1) * size[a]) ** 2                # (to, from)
+            D = np.moveaxis(np.min(np.moveaxis(D, a, -1)[..., None, :] + step, axis=-1), -1, a)
+        self.covered = D.reshape(-1, order="F") <= reach2
 
     @property
     def fraction(self) -> float:
