@@ -17,7 +17,8 @@ schedule and contact count:
 A schedule written ``auto/off`` or ``auto/2`` also sets ``bound_scales`` (None or 2): which
 intermediate scales are scored on the bound table alone. ``auto/2/sampler`` covers every
 scale with the rejection sampler, also where the balls hold most of the region (which
-``ScalingSeries._region_cover`` draws directly).
+``ScalingSeries._region_cover`` draws directly); ``auto/2/steps1`` sets ``bound_steps=1``
+(Alg. 1's single steps on the table's scales too).
 
     cd benchmarks
     OMP_NUM_THREADS=1 ../.venv/bin/python study_anneal.py --contacts 10 30 60 --trials 10 --offset 0
@@ -96,7 +97,7 @@ def main(argv=None) -> int:
     ap.add_argument("--schedules", nargs="+", default=["alg1", "auto", "contacts"],
                     help="anneal= values: alg1, auto, contacts or a gain; NAME/B also sets bound_scales=B "
                          "(NAME/off: None, every scale scored exactly); NAME/B/sampler: the rejection sampler "
-                         "at every scale")
+                         "at every scale; NAME/B/stepsK: bound_steps=K")
     ap.add_argument("--contacts", type=int, nargs="+", default=[10, 30, 60])
     ap.add_argument("--meshes", nargs="+", default=ALL_MESHES[:5])
     ap.add_argument("--trials", type=int, default=10)
