@@ -1,5 +1,6 @@
-"""The mapping package runs its linear algebra with BLAS on the threads TOUCHLOC_BLAS_THREADS
-allows (one by default), and gives the process its own setting back afterwards."""
+"""touchloc runs its linear algebra with BLAS on the threads TOUCHLOC_BLAS_THREADS allows (one
+by default) inside the mapping package's calls and the estimators', and gives the process its own
+setting back afterwards."""
 
 from __future__ import annotations
 
@@ -74,3 +75,101 @@ def test_a_bad_thread_count_is_a_clear_error_and_the_map_is_unchanged(monkeypatc
     with pytest.raises(ValidationError, match=BLAS_THREADS_ENV):
         m.update(_results())
     assert m.n_contacts == 3
+
+
+# -- the estimators --------------------------------------------------------------------
+def _recording_model(obj, seen):
+    """A proximity model that records BLAS's threads at each likelihood call (a subclass,
+    so the estimators call its ``log_likelihood``)."""
+    from touchloc.models import ProximityModel
+
+    class Recording(ProximityModel):
+        def log_likelihood(self, poses, contacts=None, temperature=1.0):
+            seen.append(_blas_threads())
+            return super().log_likelihood(poses, contacts, temperature)
+
+    return Recording(obj, 0.002, np.deg2rad(5))
+
+
+@pytest.fixture
+def touched(objects):
+    from touchloc.belief import PoseRegion
+
+    obj, rng = objects["milk"], np.random.default_rng(3)
+    region = PoseRegion.box((0, 0, 0), 0.03, "yaw")
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = obj.sample_surface(8, rng=rng)
+    return obj, Contacts(p + rng.normal(scale=0.002, size=p.shape), n).transform(true), region
+
+
+def test_scaling_series_scales_run_blas_on_one_thread_and_not_between_them(two_threads, monkeypatch, touched):
+    from touchloc.belief import ScalingSeries
+
+    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
+    obj, contacts, region = touched
+    seen, between = [], []
+    ss = ScalingSeries(_recording_model(obj, seen), rng=0, progress=False)
+    steps = 0
+    for _ in ss.iterate(contacts, region):
+        between.append(_blas_threads())
+        steps += 1
+    assert steps > 3 and len(seen) >= steps
+    assert all(s == [1] for s in seen)
+    assert all(s == [2] for s in between)
+    # a generator left early gives the setting back too
+    it = ss.iterate(contacts, region)
+    next(it)
+    it.close()
+    assert _blas_threads() == [2]
+
+
+@pytest.mark.parametrize("estimator", ["localize", "smc", "identify"])
+def test_the_estimators_run_blas_on_one_thread(two_threads, monkeypatch, touched, estimator):
+    from touchloc.belief import ScalingSeries, SMCFilter, identify
+
+    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
+    obj, contacts, region = touched
+    seen = []
+    model = _recording_model(obj, seen)
+    if estimator == "localize":
+        ScalingSeries(model, rng=0, progress=False).localize(contacts, region)
+    elif estimator == "smc":
+        f = SMCFilter(model, 300, rng=0)
+        f.initialize(region)
+        f.update(contacts)
+    else:
+        identify({"milk": model}, contacts, region, rng=0)
+    assert seen and all(s == [1] for s in seen)
+    assert _blas_threads() == [2]
+
+
+def test_a_limited_generator_passes_values_returns_and_raises_like_the_plain_one(two_threads, monkeypatch):
+    from touchloc._util import blas_threads
+
+    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
+    inside = []
+
+    @blas_threads
+    def gen(n):
+        total = 0
+        for i in range(n):
+            inside.append(_blas_threads())
+            got = yield i
+            total += got or 0
+        if total < 0:
+            raise ValueError("negative")
+        return total
+
+    g = gen(3)
+    assert next(g) == 0
+    assert g.send(5) == 1
+    assert g.send(6) == 2
+    with pytest.raises(StopIteration) as stop:
+        g.send(7)
+    assert stop.value.value == 18
+    assert inside == [[1]] * 3 and _blas_threads() == [2]
+    g = gen(1)
+    next(g)
+    with pytest.raises(ValueError, match="negative"):
+        g.send(-1)
+    assert _blas_threads() == [2]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 from typing import Iterable
@@ -100,6 +101,27 @@ def _blas_limit():
     return n
 
 
+@contextlib.contextmanager
+def _blas_limited():
+    """The body runs with BLAS limited to :func:`_blas_limit` threads; nested uses keep it."""
+    global _BLAS_CONTROLLER
+    n = _blas_limit()
+    if n == 0 or getattr(_BLAS_INSIDE, "on", False):
+        yield
+        return
+    if _BLAS_CONTROLLER is None:
+        import scipy.linalg  # noqa: F401  (scipy's own BLAS, loaded before the controller looks)
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    _BLAS_INSIDE.on = True
+    try:
+        with _BLAS_CONTROLLER.limit(limits=n, user_api="blas"):
+            yield
+    finally:
+        _BLAS_INSIDE.on = False
+
+
 def blas_threads(fn):
     """Decorator: run ``fn`` with BLAS limited to :func:`_blas_limit` threads (threadpoolctl).
 
@@ -107,27 +129,39 @@ def blas_threads(fn):
     by a dozen new ones) and kernel matrices of a few thousand rows, where a second BLAS
     thread mostly waits: measured on 2 cores with OpenBLAS on both, a tactile SLAM update
     took 1.6-5x longer than on one thread and a static map's update 1.7-10x (docs/benchmarks.md,
-    "BLAS threads"). The limit holds while the call runs (for the whole process: BLAS
-    calls of other Python threads meanwhile are limited too) and the process's own setting
-    is restored after; nested calls keep it.
+    "BLAS threads"). The estimators' work is compiled kernels on numba's threads with small
+    products between them, and an idle BLAS pool's threads, which spin for a while after
+    each product, took the cores from those kernels: a 5-contact Scaling Series localisation
+    of the mug ran 2.1x longer with BLAS's default threads than with one (docs/benchmarks.md,
+    "BLAS threads in the estimators"). The limit holds while the call runs (for the whole
+    process: BLAS calls of other Python threads meanwhile are limited too) and the process's
+    own setting is restored after; nested calls keep it. A generator function is limited
+    while it runs, each time it is resumed, and not between its items.
     """
     import functools
+    import inspect
+
+    if inspect.isgeneratorfunction(fn):
+        @functools.wraps(fn)
+        def gen_wrapper(*args, **kwargs):
+            it = fn(*args, **kwargs)
+            value = None
+            try:
+                while True:
+                    with _blas_limited():
+                        try:
+                            item = it.send(value)
+                        except StopIteration as stop:
+                            return stop.value
+                    value = yield item
+            finally:
+                it.close()
+
+        return gen_wrapper
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        global _BLAS_CONTROLLER
-        n = _blas_limit()
-        if n == 0 or getattr(_BLAS_INSIDE, "on", False):
+        with _blas_limited():
             return fn(*args, **kwargs)
-        if _BLAS_CONTROLLER is None:
-            from threadpoolctl import ThreadpoolController
-
-            _BLAS_CONTROLLER = ThreadpoolController()
-        _BLAS_INSIDE.on = True
-        try:
-            with _BLAS_CONTROLLER.limit(limits=n, user_api="blas"):
-                return fn(*args, **kwargs)
-        finally:
-            _BLAS_INSIDE.on = False
 
     return wrapper

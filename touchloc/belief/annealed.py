@@ -7,7 +7,7 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_count, as_nonnegative_float, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
@@ -56,6 +56,7 @@ class AnnealedParticleFilter:
         self.rho = rho
         self.rng = as_rng(rng)
 
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         t0 = time.perf_counter()
         contacts = check_contacts(contacts)
@@ -149,6 +150,7 @@ class ManifoldParticleFilter:
         t[:, fixed] = region.center[fixed]
         return make_poses(R, t)
 
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         t0 = time.perf_counter()
         contacts = check_contacts(contacts)

@@ -8,6 +8,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 from scipy.special import logsumexp
 
+from .._util import blas_threads
 from .._validate import as_positive_float
 from ..errors import ValidationError
 from ._common import check_contacts, check_dynamics, check_model, check_region, finite_loglik, flag_degenerate, measurement
@@ -120,6 +121,7 @@ class HistogramFilter:
             lp = np.log(np.maximum(p, 0.0))
         self._log_p = lp - logsumexp(lp)
 
+    @blas_threads
     def update(self, contacts, *, model=None, free_space=None) -> ParticleBelief:
         """Measurement update at every cell centre (eq. 42.9).
 
@@ -143,6 +145,7 @@ class HistogramFilter:
             flag_degenerate(b, float(ll.ravel()[np.argmax(lp)]), contacts)
         return b
 
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         """Static: uniform grid prior times the likelihood."""
         t0 = time.perf_counter()

@@ -7,7 +7,7 @@ from typing import Mapping
 import numpy as np
 from scipy.special import logsumexp
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import as_bool, as_mapping, as_nonnegative_float
 from ..errors import BeliefDegenerateError, ValidationError
 from ._common import check_contacts
@@ -17,6 +17,7 @@ from .scaling_series import ScalingSeries
 __all__ = ["identify", "log_evidence"]
 
 
+@blas_threads
 def log_evidence(model, contacts, region: PoseRegion, *, rng=None, **ss_kwargs):
     """log p(contacts | object) with a uniform pose prior over ``region``.
 
@@ -49,6 +50,7 @@ def log_evidence(model, contacts, region: PoseRegion, *, rng=None, **ss_kwargs):
 IDENTIFY_DEFAULTS = dict(m_per_delta=4, max_particles=3000, max_draws=12000, n_initial=1500)
 
 
+@blas_threads
 def identify(models: Mapping, contacts, region: PoseRegion, *, prior: Mapping | None = None, rng=None,
              return_beliefs: bool = False, **ss_kwargs):
     """Posterior probability of each object given contacts (same pose prior for all).

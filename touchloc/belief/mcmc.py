@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import as_bool, as_count
 from ..errors import BeliefDegenerateError, ValidationError
 from ._common import check_contacts, check_model, check_region
@@ -48,6 +48,7 @@ class MCMC:
         self.rng = as_rng(rng)
         self.progress = progress
 
+    @blas_threads
     def refine(self, contacts, start: ParticleBelief, region: PoseRegion | None = None) -> ParticleBelief:
         """Run the chain from ``start`` and return its samples as an equally weighted belief.
 

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_nonnegative_float, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
@@ -55,6 +55,7 @@ class ParticleFilter:
         return (region.volume() / self.n_particles) ** (1.0 / region.dim)
 
     # -- static ------------------------------------------------------------------------
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         """Importance sampling: n_particles uniform poses weighted by the likelihood."""
         t0 = time.perf_counter()
@@ -83,6 +84,7 @@ class ParticleFilter:
         X = self.dynamics.sample(self.belief.poses, rng=self.rng)
         self.belief = self.belief.with_particles(X, self.belief.log_weights)
 
+    @blas_threads
     def update(self, contacts, *, model=None, resample: bool = True, free_space=None) -> ParticleBelief:
         """Weight by the likelihood of the new measurements; resample and roughen when the
         ESS drops.

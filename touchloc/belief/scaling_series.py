@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._util import as_rng, progress
+from .._util import as_rng, blas_threads, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
@@ -594,6 +594,7 @@ class ScalingSeries:
         return out
 
     # -- static ------------------------------------------------------------------------
+    @blas_threads
     def iterate(self, contacts, region: PoseRegion, *, centers=None, delta0: float | None = None,
                 log_prior=None):
         """Run Alg. 1 one scale at a time, yielding a :class:`ScaleStep` per scale.
@@ -668,6 +669,7 @@ class ScalingSeries:
             delta = new_delta
             yield ScaleStep(n, new_delta, tau, n_part, len(X), belief, time.perf_counter() - t0)
 
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         """Static localisation with a uniform prior over ``region`` (Alg. 1).
 
@@ -703,6 +705,7 @@ class ScalingSeries:
         if self.belief is not None:
             self._pending_predict = True
 
+    @blas_threads
     def update(self, contacts, *, free_space=None) -> ParticleBelief:
         """Measurement update: Scaling Series on the support of the predicted prior, weights
         multiplied by the prior propagated from the previous particle set (ch. 42.1.4).

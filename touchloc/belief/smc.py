@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit
 
-from .._util import as_poses, as_rng
+from .._util import as_poses, as_rng, blas_threads
 from .._util import logsumexp1d as _logsumexp
 from .._validate import as_count, as_nonnegative_float, as_probability
 from ..errors import ValidationError
@@ -111,6 +111,7 @@ class SMCFilter:
         self._belief = ParticleBelief(self.poses, self.log_w, region=self.region)
         return self._belief
 
+    @blas_threads
     def localize(self, contacts, region: PoseRegion) -> ParticleBelief:
         """Static use: the uniform prior over ``region`` updated once with ``contacts``."""
         self.initialize(region)
@@ -202,6 +203,7 @@ class SMCFilter:
             return out
         return ll
 
+    @blas_threads
     def update(self, contacts, *, free_space=None) -> ParticleBelief:
         """Fold in new measurements: a :class:`~touchloc.models.Contacts`, or the executed
         touches of an action (a ``planners.TouchResult`` or a list of them; their contacts

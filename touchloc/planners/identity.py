@@ -7,7 +7,7 @@ import time
 import numpy as np
 from scipy.special import logsumexp
 
-from .._util import as_rng
+from .._util import as_rng, blas_threads
 from .._validate import (as_count, as_mapping, as_nonnegative_float, as_positive_float, as_probability,
                          as_sequence)
 from ..errors import PlanningError, ValidationError
@@ -62,6 +62,7 @@ class IdentityPlanner:
         self.beta = float(beta)
         self.cost = as_cost(cost)
 
+    @blas_threads
     def plan(self, beliefs, probabilities, candidates, *, rng=None) -> Plan:
         """Score every candidate.
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._util import as_rng, progress
+from .._util import as_rng, blas_threads, progress
 from .._validate import (as_bool, as_count, as_nonnegative_float, as_positive_float,
                          as_probability, as_sequence)
 from ..errors import BeliefDegenerateError, PlanningError, ValidationError
@@ -316,6 +316,7 @@ class OneStepPlanner:
         ok = pc <= self.max_collision
         return ok if ok.any() else pc <= pc.min() + 1e-12
 
+    @blas_threads
     def plan(self, belief, candidates, *, rng=None) -> Plan:
         """Score every candidate and choose the best.
 
@@ -383,6 +384,7 @@ class TwoStepPlanner(OneStepPlanner):
         self.branch = None if branch is None else int(branch)
         self.progress = progress
 
+    @blas_threads
     def plan(self, belief, candidates, *, rng=None) -> Plan:
         rng = as_rng(rng)
         t0 = time.perf_counter()
@@ -417,6 +419,7 @@ class RandomPlanner:
     def __init__(self, model=None):
         self.model = model
 
+    @blas_threads
     def plan(self, belief, candidates, *, rng=None) -> Plan:
         rng = as_rng(rng)
         t0 = time.perf_counter()
