@@ -1,13 +1,16 @@
 """This checkout's localisation time against another commit's, trial by trial.
 
     python benchmarks/ab_speed.py REV [--trials N] [--contacts 10,30] [--meshes mug,milk,...]
+                                      [--identify N]
 
 The speed benchmark's trials (``bench_speed.py``: the README quick-start path, 2 mm / 5 deg
 contacts, pose uniform in a 400 mm cube) on two worker processes, one importing touchloc
 from this checkout and one from ``git archive REV``. The two answer each trial in turn, in
 alternating order, so that both see the same load on a shared machine; the ratio reported
 is the median over trials of the per-trial ratio (REV / this checkout). Prints a Markdown
-table; nothing is written to docs/.
+table; nothing is written to docs/. ``--identify N`` adds N identifications among the six
+bundled objects from 10 contacts (the speed benchmark's, true object in turn), alternating in
+the same way.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--meshes", default="mug,milk,can,cereal",
                     help=f"bundled meshes, or {BALL!r} for the speed benchmark's near-spherical one")
     ap.add_argument("--threads", type=int, default=0, help="numba threads per worker (0: numba's default)")
+    ap.add_argument("--identify", type=int, default=0, help="identification trials to add (0: none)")
     a = ap.parse_args(argv)
     ks = [int(k) for k in a.contacts.split(",")]
     meshes = a.meshes.split(",")
@@ -66,6 +70,23 @@ def main(argv=None) -> int:
                     rows.append([mesh, k, a.trials, f"{np.median(tb):.3f}", f"{np.median(tc):.3f}",
                                  f"{np.median(tb / tc):.2f}x", f"{sum(ok_b)}/{a.trials}", f"{sum(ok_c)}/{a.trials}"])
                     print(" | ".join(str(x) for x in rows[-1]), file=sys.stderr, flush=True)
+            if a.identify:
+                six = ["bread", "can", "cereal", "lemon", "milk", "mug"]
+                tb, tc, ok_b, ok_c = [], [], [], []
+                for s in range(a.identify):
+                    first, second = (cur, base) if s % 2 == 0 else (base, cur)
+                    req = dict(kind="identify", meshes=six, truth=six[s % 6], k=10, seed=300 + s)
+                    r1, r2 = first.ask(**req), second.ask(**req)
+                    rc, rb = (r1, r2) if first is cur else (r2, r1)
+                    tc.append(rc["time"])
+                    tb.append(rb["time"])
+                    ok_c.append(rc["correct"])
+                    ok_b.append(rb["correct"])
+                tb, tc = np.array(tb), np.array(tc)
+                rows.append(["identify (six objects)", 10, a.identify, f"{np.median(tb):.3f}", f"{np.median(tc):.3f}",
+                             f"{np.median(tb / tc):.2f}x", f"{sum(ok_b)}/{a.identify} right",
+                             f"{sum(ok_c)}/{a.identify} right"])
+                print(" | ".join(str(x) for x in rows[-1]), file=sys.stderr, flush=True)
         finally:
             cur.close()
             base.close()
