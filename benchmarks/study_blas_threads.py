@@ -1,6 +1,6 @@
 """Tactile SLAM and shape-map updates with BLAS on one thread against BLAS's own default.
 
-    python benchmarks/study_blas_threads.py [--steps 200]
+    python benchmarks/study_blas_threads.py [--steps 200] [--trials 8]
 
 The mapping package limits BLAS to ``TOUCHLOC_BLAS_THREADS`` threads (1 by default) inside
 its calls. This study runs the same worlds in child processes with the process's BLAS
@@ -10,7 +10,9 @@ core), and reports the wall-clock time of each update, binned by the contacts in
 
 - a pushed run of the milk carton with a three-finger hand (``TactileSLAM``, 2 mm / 2 deg
   per action, as the SLAM benchmark's "update time as the map grows");
-- a static map of the mug explored with one probe (``ShapeMap`` via ``explore``).
+- a static map of the mug explored with one probe (``ShapeMap`` via ``explore``);
+- Scaling Series localising the mug (the speed benchmark's trials at 5, 10 and 30 contacts,
+  ``--trials`` each; "contacts in the map" is then the contacts of a localisation).
 
 The two settings alternate run by run (limited, unlimited, limited, ...) so that both see
 the same machine load. Prints a Markdown table; nothing is written to docs/.
@@ -44,7 +46,23 @@ def _child(kind: str, steps: int) -> dict:
     from touchloc.planners import SimulatedWorld
 
     counts, wall = [], []
-    if kind == "slam":
+    if kind == "localize":
+        from bench_localization import trial
+
+        from touchloc.belief import PoseRegion, ScalingSeries
+        from touchloc.models import ProximityModel
+
+        model = ProximityModel(quiet_load("mug"), 0.002, np.deg2rad(5.0))
+        cube = PoseRegion.box((0, 0, 0), 0.2, "full")
+        ScalingSeries(model, rng=0, progress=False).localize(trial(model.obj, cube, 30, 0)[1], cube)  # warm
+        for k in (5, 10, 30):
+            for s in range(steps):
+                c = trial(model.obj, cube, k, 5000 + 100 * k + s)[1]
+                t0 = time.perf_counter()
+                ScalingSeries(model, rng=5000 + 100 * k + s, progress=False).localize(c, cube)
+                wall.append(time.perf_counter() - t0)
+                counts.append(k)
+    elif kind == "slam":
         obj = quiet_load("milk")
         lo, hi = obj.bounds
         world = MovingWorld(obj, rng=0, push=(0.002, np.deg2rad(2.0)), planar=True)
@@ -83,17 +101,18 @@ def _run(kind: str, steps: int, limit: str | None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def measure(steps: int = 200) -> str:
+def measure(steps: int = 200, trials: int = 8) -> str:
     """The study's table (Markdown), with the machine's cores and load."""
     sys.path.insert(0, str(HERE))
     from _common import table
 
     rows = []
     load = [os.getloadavg()[0]]
-    for kind, label in (("slam", "TactileSLAM, milk pushed, 3 fingers"), ("map", "ShapeMap, mug static, 1 probe")):
-        one = _run(kind, steps, None)
-        free = _run(kind, steps, "0")
-        for lo, hi in BINS:
+    for kind, label in (("slam", "TactileSLAM, milk pushed, 3 fingers"), ("map", "ShapeMap, mug static, 1 probe"),
+                        ("localize", "ScalingSeries.localize, mug")):
+        one = _run(kind, trials if kind == "localize" else steps, None)
+        free = _run(kind, trials if kind == "localize" else steps, "0")
+        for lo, hi in (((4, 5), (9, 10), (29, 30)) if kind == "localize" else BINS):
             cells = []
             for r in (one, free):
                 c, w = np.array(r["counts"]), 1e3 * np.array(r["wall"])
@@ -101,7 +120,7 @@ def measure(steps: int = 200) -> str:
                 cells.append(None if not np.any(sel) else (int(sel.sum()), np.median(w[sel]), np.percentile(w[sel], 95)))
             if cells[0] is None or cells[1] is None:
                 continue
-            rows.append([label, f"{lo + 1}-{hi}", cells[0][0], f"{cells[0][1]:.0f} / {cells[0][2]:.0f}",
+            rows.append([label, f"{hi}" if hi == lo + 1 else f"{lo + 1}-{hi}", cells[0][0], f"{cells[0][1]:.0f} / {cells[0][2]:.0f}",
                          f"{cells[1][1]:.0f} / {cells[1][2]:.0f}", f"{cells[1][1] / cells[0][1]:.1f}x"])
             print(" | ".join(str(x) for x in rows[-1]), file=sys.stderr, flush=True)
     load.append(os.getloadavg()[0])
@@ -113,12 +132,13 @@ def measure(steps: int = 200) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
-    ap.add_argument("--child", choices=("slam", "map"))
+    ap.add_argument("--trials", type=int, default=8, help="localisations per contact count")
+    ap.add_argument("--child", choices=("slam", "map", "localize"))
     a = ap.parse_args(argv)
     if a.child:
         print(json.dumps(_child(a.child, a.steps)))
         return 0
-    print(measure(a.steps))
+    print(measure(a.steps, a.trials))
     return 0
 
 
