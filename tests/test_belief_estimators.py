@@ -126,11 +126,13 @@ def test_contacts_far_from_the_region_give_a_flagged_belief_not_nan(box):
     region = PoseRegion.box((0, 0, 0), 0.02, "yaw")
     c = Contacts([[1.0, 1.0, 1.0], [1.0, 1.1, 1.0]], [[0, 0, 1.0], [0, 0, 1.0]])
     model = ProximityModel(box, 0.002, 0.1)
-    with pytest.warns(DegenerateBeliefWarning, match="sigma"):
+    with pytest.warns(DegenerateBeliefWarning, match="sigma") as got:
         b = ScalingSeries(model, rng=0).localize(c, region)
     assert b.degenerate and np.all(np.isfinite(b.poses)) and np.all(np.isfinite(b.weights))
-    with pytest.warns(DegenerateBeliefWarning):
+    with pytest.warns(DegenerateBeliefWarning) as got_pf:
         assert ParticleFilter(model, n_particles=500, rng=0).localize(c, region).degenerate
+    # the warnings name the caller's line, not touchloc's own frames
+    assert {w.filename for w in list(got) + list(got_pf)} == {__file__}
 
 
 class Impossible(MeasurementModel):

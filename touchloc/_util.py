@@ -78,6 +78,19 @@ def _log_progress(iterable, total, desc, interval):
         yield item
 
 
+def external_stacklevel() -> int:
+    """``stacklevel`` for a ``warnings.warn`` made by the caller of this function that names
+    the first frame outside touchloc: the user's call, however many of touchloc's own frames
+    (wrappers, generators) lie between."""
+    import os
+
+    pkg = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    f, level = sys._getframe(1), 1
+    while f is not None and os.path.abspath(f.f_code.co_filename).startswith(pkg):
+        f, level = f.f_back, level + 1
+    return level
+
+
 # -- BLAS threads ------------------------------------------------------------------------
 #: environment variable: the BLAS threads the mapping package's work may use ("0": no limit)
 BLAS_THREADS_ENV = "TOUCHLOC_BLAS_THREADS"

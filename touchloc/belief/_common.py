@@ -6,6 +6,7 @@ import warnings
 
 import numpy as np
 
+from .._util import external_stacklevel
 from ..errors import BeliefDegenerateError, ValidationError
 from ..models import Contacts
 from ..models.base import MeasurementModel
@@ -128,7 +129,7 @@ def flag_degenerate(belief: ParticleBelief, loglik_map: float, contacts: Contact
         warnings.warn(
             f"the best pose leaves the contacts {np.sqrt(mean_cost):.1f} sigma from the surface on "
             "average: the object is probably not in the region, or the contacts are not on this "
-            "object; the belief is flagged degenerate", DegenerateBeliefWarning, stacklevel=3)
+            "object; the belief is flagged degenerate", DegenerateBeliefWarning, stacklevel=external_stacklevel())
     return belief
 
 
