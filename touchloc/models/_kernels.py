@@ -515,7 +515,10 @@ def query_joint(tree: BVH, P, N, wp: float, wn: float):
 # near-surface lists keyed by the query's normal (the fast method's first stop)
 #: Normal bins: a cube map of 8 x 8 bins on each of its 6 sides (one 64-bit word a side).
 NEAR_BINS = 8
-#: Finest-level cells whose centre lies within this many cells of the surface get lists.
+#: Finest-level cells whose centre lies within this many cells of the surface get lists,
+#: and at least those that a pair costing less than NEAR_COST can fall in (a point within
+#: sqrt(NEAR_COST) sigma of the surface): on a small mesh, whose cells are small, three
+#: cells fell short of that (the lemon's 1.9 mm cells: 5.6 mm against 10 mm).
 NEAR_REACH = 3.0
 #: A (cell, normal bin) gets a list when some sample in it costs less than this (d_M^2):
 #: the pairs of poses near a posterior's support. Costlier pairs take the cell's own list.
@@ -845,7 +848,9 @@ def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids, p
 def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float, adjacency=None):
     """The normal-keyed lists of the finest level's cells near the surface.
 
-    A cell whose centre lies within :data:`NEAR_REACH` cells of the surface is sampled at
+    A cell whose centre lies within :data:`NEAR_REACH` cells of the surface, or within reach
+    of a point costing :data:`NEAR_COST` (``sqrt(NEAR_COST sigma2)`` plus half the cell's
+    diagonal), is sampled at
     its 8 corners, each for the centre and 4 corners of every cube-map bin; a (cell, bin)
     in which some sample costs less than :data:`NEAR_COST` (d_M^2 at ``sigma2``) lists the
     distinct winners of its samples costing less than :data:`NEAR_SAMPLE_COST`, and the
@@ -862,7 +867,7 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
     g = [lo[d] + (np.arange(shape[d]) + 0.5) * cell for d in range(3)]
     centres = np.stack(np.meshgrid(*g, indexing="ij"), axis=-1).reshape(-1, 3)
     args = (tree.tri, tree.nrm, tree.plo, tree.phi, tree.nlo, tree.nhi, tree.left, tree.right, tree.start, tree.count)
-    reach = NEAR_REACH * cell
+    reach = max(NEAR_REACH * cell, float(np.sqrt(NEAR_COST * sigma2)) + 0.5 * np.sqrt(3.0) * cell)
     d2 = np.empty((len(centres), 1))
     _near_samples(*args, centres, np.zeros((1, 3)), 0.0, reach * reach, d2, np.empty((len(centres), 1), np.int64))
     cells = np.flatnonzero(d2[:, 0] < reach * reach)

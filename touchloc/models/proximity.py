@@ -96,7 +96,8 @@ class ProximityModel(MeasurementModel):
     -----
     The fast method first looks, for a query near the surface, in a short list keyed by
     both its cell and its normal: the finest level's cells within three cells of the
-    surface list, for each of 384 normal bins (a cube map) in which the cost can be low
+    surface (and at least within reach of a pair costing 25 d_M^2) list, for each of 384
+    normal bins (a cube map) in which the cost can be low
     (below 25 d_M^2 at a sample), the faces that win at the cell's corners for the bin's
     centre, corners and edge midpoints, and those faces' coplanar neighbours that reach
     the cell (on a flat side split into triangles, the one holding the query's projection
