@@ -146,10 +146,12 @@ def blas_threads(fn):
     products between them, and an idle BLAS pool's threads, which spin for a while after
     each product, took the cores from those kernels: a 5-contact Scaling Series localisation
     of the mug ran 2.1x longer with BLAS's default threads than with one (docs/benchmarks.md,
-    "BLAS threads in the estimators"). The limit holds while the call runs (for the whole
-    process: BLAS calls of other Python threads meanwhile are limited too) and the process's
-    own setting is restored after; nested calls keep it. A generator function is limited
-    while it runs, each time it is resumed, and not between its items.
+    "BLAS threads"). The limit is set through threadpoolctl while the call runs, and the
+    setting found on entry is restored after; nested calls keep it. Limited calls that
+    overlap in several Python threads are not coordinated: each restores what it found (and
+    OpenBLAS 0.3.30 was seen to keep a thread's own setting once that thread had set one).
+    A generator function is limited while it runs, each time it is resumed, and not between
+    its items.
     """
     import functools
     import inspect
