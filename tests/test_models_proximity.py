@@ -365,6 +365,7 @@ def test_near_lists_reach_every_pair_that_costs_less_than_their_threshold(object
     from the surface: 73 % of them found one)."""
     from touchloc.belief import PoseRegion
     from touchloc.models import _kernels as K
+    from touchloc.models import contacts_in_object_frame
 
     rng = np.random.default_rng(11)
     for name in ("lemon", "mug"):
@@ -375,10 +376,8 @@ def test_near_lists_reach_every_pair_that_costs_less_than_their_threshold(object
         true = region.sample(1, rng=rng)[0]
         p, n, _ = obj.sample_surface(30, rng=rng)
         X = region.perturb(np.repeat(true[None], 400, axis=0), 0.01, rng=rng, ball=False)
-        R = np.einsum("nji,njk->nik", X[:, :3, :3], true[None, :3, :3])  # object-frame moves
-        P = (np.einsum("nij,kj->nki", R, p) + np.einsum("nji,nj->ni", X[:, :3, :3], true[:3, 3] - X[:, :3, 3])[:, None]
-             ).reshape(-1, 3)
-        N = np.einsum("nij,kj->nki", R, n).reshape(-1, 3)
+        P, N = contacts_in_object_frame(X, Contacts(p, n).transform(true))
+        P, N = P.reshape(-1, 3), N.reshape(-1, 3)
         exact = model.query_costs(P, N, method="exact")
         found, _ = K.near_list_costs(grid, P, N)
         low = exact < K.NEAR_COST
