@@ -286,6 +286,117 @@ def test_scaling_series_searches_one_pose_per_class_of_a_symmetric_object(object
         ScalingSeries(model, symmetry="yes")
 
 
+def test_scaling_series_searches_a_near_sphere_as_a_sphere_at_wide_scales_only(objects):
+    """The lemon is 2.5 mm off a sphere: at scales at least twice that wide the search
+    keeps one pose per position of its centre, then covers every rotation around the
+    centres found, so the answer is a belief over full poses, as accurate as the search
+    over every pose, from fewer evaluations. A mug is not searched so (its rotations at
+    twice its deviation fill a few hundred balls), nor is any object with ``symmetry=None``
+    or in a yaw-only region."""
+    lemon = objects["lemon"]
+    region = PoseRegion.box((0, 0, 0), 0.1, "full")
+    model = ProximityModel(lemon, 0.002, np.deg2rad(5))
+    for seed in (3, 4):
+        rng = np.random.default_rng(seed)
+        true = region.sample(1, rng=rng)[0]
+        p, n, _ = lemon.sample_surface(20, rng=rng)
+        c = Contacts(p + rng.normal(scale=0.002, size=p.shape), n + rng.normal(scale=0.06, size=n.shape))
+        c = c.transform(true)
+        steps = list(ScalingSeries(model, rng=0, progress=False).iterate(c, region))
+        on, off = steps[-1].belief, ScalingSeries(model, rng=0, progress=False, symmetry=None).localize(c, region)
+        # searched as a sphere down to twice its deviation, or to where one centre's
+        # rotations would hold less than a particle a ball within the cap if that is wider
+        ss = ScalingSeries(model)
+        switch = max(2.0 * lemon._near_sphere().tol, ss._orbit_scale(region.with_rho(lemon.radius)))
+        assert 0.004 < switch < 0.007
+        assert on.info["near_sphere_scales"] > 0 and off.info["near_sphere_scales"] == 0
+        assert on.info["symmetry"] is None
+        # the scales as a sphere's hold identity rotations; the rest, and the answer, any
+        for st in steps[1:-1]:
+            ident = np.allclose(st.belief.poses[:, :3, :3], np.eye(3), atol=1e-9)
+            assert ident == (st.delta >= switch), (st.delta, switch)
+        angles = np.degrees(np.arccos(np.clip((np.trace(on.poses[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1, 1)))
+        assert np.ptp(angles) > 10.0
+        assert add_s(lemon, on.map_pose(), true) < 0.002 and add_s(lemon, off.map_pose(), true) < 0.002
+        ll = model.log_likelihood(np.stack([true, on.map_pose(), off.map_pose()]), c)
+        assert ll[1] > ll[0] - 2.0 and ll[1] > ll[2] - 2.0
+        assert sum(st.n_particles for st in steps) < 0.7 * off.info["evaluations"]
+    # a lumpy ball 20 cm across, 4 % lumps: searched as a sphere only down to where its
+    # rotations hold a particle a ball (a fifth of its radius), not to twice its deviation
+    s = trimesh.creation.icosphere(subdivisions=4)
+    u = s.vertices
+    polar, azim = np.arccos(np.clip(u[:, 2], -1, 1)), np.arctan2(u[:, 1], u[:, 0])
+    lumpy = MeshObject(trimesh.Trimesh(u * (0.1 * (1 + 0.04 * np.cos(6 * polar) * np.cos(5 * azim)))[:, None],
+                                       s.faces), name="lumpy ball")
+    assert lumpy._sphere_symmetry() is None
+    lumpy_model = ProximityModel(lumpy, 0.002, np.deg2rad(5))
+    sw = ScalingSeries(lumpy_model)._orbit_scale(region.with_rho(lumpy.radius))
+    assert sw == pytest.approx(0.1846 * lumpy.radius, rel=0.01) and sw > 2.0 * lumpy._near_sphere().tol
+    p, n, _ = lumpy.sample_surface(10, rng=2)
+    seen = set()
+    for st in ScalingSeries(lumpy_model, rng=0, progress=False).iterate(Contacts(p, n), region):
+        if 0 < st.index and st.tau > 1:
+            ident = np.allclose(st.belief.poses[:, :3, :3], np.eye(3), atol=1e-9)
+            assert ident == (st.delta >= sw), (st.delta, sw)
+            seen.add(ident)
+    assert seen == {True, False}
+    mug = ProximityModel(objects["mug"], 0.002, np.deg2rad(5))
+    p, n, _ = objects["mug"].sample_surface(10, rng=1)
+    b = ScalingSeries(mug, rng=0, progress=False).localize(Contacts(p, n), region)
+    assert b.info["near_sphere_scales"] == 0
+    yaw = ScalingSeries(model, rng=0, progress=False).localize(c, PoseRegion.box(true[:3, 3], 0.02, "yaw"))
+    assert yaw.info["near_sphere_scales"] == 0
+
+
+def test_orbit_cover_is_even_on_the_centres_union_at_every_rotation(objects):
+    """After the scales searched as a sphere's, the cover holds every rotation (Haar: the
+    mean rotation matrix is zero) with the surface centre uniform on the union of the
+    centres' balls (the share of draws in the overlap of two balls is the overlap's share
+    of the union's volume), inside the region, with the union's volume in the pose metric
+    (the balls' volume times SO(3)'s, 8 pi^2 rho^3). One centre is drawn from its ball,
+    a tight cluster of them from their bounding box: both give the same."""
+    lemon = objects["lemon"]
+    model = ProximityModel(lemon, 0.002, np.deg2rad(5))
+    region = PoseRegion.box((0, 0, 0), 0.1, "full").with_rho(lemon.radius)
+    near = lemon._near_sphere()
+    c = near.center
+    r = 0.006
+    v_rot = 8 * np.pi**2 * lemon.radius**3
+    ss = ScalingSeries(model, rng=1, max_particles=20000, max_draws=200000)
+
+    def centres(points):
+        X = np.tile(np.eye(4), (len(points), 1, 1))
+        X[:, :3, 3] = np.asarray(points) - c
+        return X
+
+    def surface_centres(X):
+        return X[:, :3, :3] @ c + X[:, :3, 3]
+
+    # one centre (drawn from its ball)
+    X, vol = ss._orbit_cover(region, centres([[0.01, 0.0, 0.0]]), r, 0.004, near)
+    assert len(X) > 2000 and region.contains(X).all()
+    assert vol == pytest.approx(4 / 3 * np.pi * r**3 * v_rot, rel=0.05)
+    d = np.linalg.norm(surface_centres(X) - [0.01, 0, 0], axis=1)
+    assert d.max() <= r * (1 + 1e-6)
+    assert np.mean(d**3) / r**3 == pytest.approx(0.5, abs=0.03)       # uniform in the ball: E[(d/r)^3] = 1/2
+    assert np.abs(X[:, :3, :3].mean(axis=0)).max() < 4.0 / np.sqrt(len(X))
+    # two overlapping centres 1 r apart, and many in a tight cluster: box draws
+    two = np.array([[0.0, 0.0, 0.0], [r, 0.0, 0.0]])
+    pts = np.concatenate([two, two[:1] + np.random.default_rng(0).normal(scale=1e-6, size=(200, 3))])
+    X, vol = ss._orbit_cover(region, centres(pts), r, 0.004, near)
+    lens = 5 / 12 * np.pi * r**3                                         # two balls' overlap at distance r
+    union = 2 * 4 / 3 * np.pi * r**3 - lens
+    assert vol == pytest.approx(union * v_rot, rel=0.06)
+    P = surface_centres(X)
+    in_both = (np.linalg.norm(P - two[0], axis=1) <= r) & (np.linalg.norm(P - two[1], axis=1) <= r)
+    assert np.mean(in_both) == pytest.approx(lens / union, abs=0.03)
+    assert np.abs(X[:, :3, :3].mean(axis=0)).max() < 4.0 / np.sqrt(len(X))
+    # the region cuts the union: translations outside it are never kept
+    small = PoseRegion.box((0, 0, 0), 0.003, "full").with_rho(lemon.radius)
+    X, vol2 = ss._orbit_cover(small, centres([[0.0, 0.0, 0.0]]), r, 0.004, near)
+    assert small.contains(X).all() and vol2 < 0.5 * 4 / 3 * np.pi * r**3 * v_rot
+
+
 def test_scaling_series_keeps_the_mugs_handle_with_many_contacts(objects):
     """Thirty contacts on a mug standing in a planar region (the calibration benchmark's
     generator: truth from the prior, 2 mm / 0.1 noise), twelve trials. Alg. 1's cover

@@ -13,7 +13,7 @@ from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_nam
                          as_probability)
 from ..errors import ValidationError
 from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
-from ..models.symmetry import Symmetry
+from ..models.symmetry import Symmetry, _qrot
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
 from ._cover import BallCounter, draw_full, in_box, matrix_quats, quat_poses
@@ -38,6 +38,13 @@ class ScaleStep:
 
 #: The "auto" schedule's annealed posterior is no narrower than Alg. 1's at this many contacts.
 ANNEAL_CONTACTS = 15
+
+#: A near-sphere is searched as a sphere at scales at least this many times as wide as its
+#: deviation from one (:meth:`ScalingSeries._near_sphere_for`).
+NEAR_SPHERE_SCALES = 2.0
+#: ... and at scales where one centre's rotations hold at most this many particles a ball
+#: within the particle cap (:meth:`ScalingSeries._orbit_scale`).
+NEAR_SPHERE_ORBIT = 1.0
 
 
 def _anneal_gain(anneal, k: int) -> float:
@@ -160,7 +167,12 @@ class ScalingSeries:
         ``model.obj.symmetries()`` when it is a sphere's: there it saves 50-80x; for a body
         of revolution the saved evaluations (a third to a half) were eaten by a denser
         cover at 5 contacts (docs/localization.md), so pass ``obj.symmetries()`` to ask
-        for it. None searches every pose. Evidence estimates (:func:`identify`) use None.
+        for it. ``"auto"`` also searches a near-sphere (a lemon, 2.5 mm off a sphere) as a
+        sphere at the scales at least twice as wide as its deviation, and every rotation
+        from the first narrower scale on, so its belief holds full poses
+        (``info["near_sphere_scales"]`` counts those scales; docs/localization.md,
+        "Near-spheres"). None searches every pose at every scale. Evidence
+        estimates (:func:`identify`) use None.
     bound_scales : float or None
         Intermediate scales whose delta is at least this many times the bound table's
         slack (:attr:`touchloc.models._bounds.CostBound.slack`, 10-15 mm on the bundled
@@ -280,6 +292,100 @@ class ScalingSeries:
         Y = sym._canonical_poses(X)
         inside = region.contains(Y)
         return Y[inside] if np.any(inside) else X
+
+    #: near-spheres searched as spheres at the wide scales (False: never; for A/B studies)
+    _NEAR_SPHERE = True
+
+    def _near_sphere_for(self, region: PoseRegion):
+        """The sphere's symmetry that a near-sphere is searched with at wide scales, or None.
+
+        With ``symmetry="auto"``, full rotations and all three translations free, an object
+        whose surface every rotation about its centroid moves by at most ``tol`` (its
+        deviation from a sphere, ``MeshObject._near_sphere``) is searched as a sphere at
+        the scales at least :data:`NEAR_SPHERE_SCALES` times ``tol`` wide: the position of
+        its centre and no rotation. At those scales the best centre found with the
+        identity rotation lies within about ``tol`` of the true one, inside the next
+        scale's balls. The first narrower scale (the last scale at the latest) covers
+        every rotation around the centres found (:meth:`_orbit_cover`), and it is never
+        narrower than :meth:`_orbit_scale`, where those rotations still hold a particle a
+        ball within the cap: a turn the contacts favour is then not missed. Used only
+        where it saves: where a single centre's rotations, at twice ``tol``, would fill
+        the particle cap at m a ball (a lemon, 12 % off a sphere, but not a box or a mug,
+        whose rotations at twice their deviation take a few hundred balls).
+        """
+        if not (self._NEAR_SPHERE and isinstance(self.symmetry, str) and region.rotation == "full"
+                and region.dim == 6):
+            return None
+        obj = getattr(self.model, "obj", None)
+        if not callable(getattr(obj, "_near_sphere", None)):
+            return None
+        near = obj._near_sphere()
+        orbit = self.m * 8.0 * np.pi**2 * region._rho() ** 3 / ball_volume(3, NEAR_SPHERE_SCALES * near.tol)
+        return near if orbit >= self.max_particles else None
+
+    def _orbit_scale(self, region: PoseRegion) -> float:
+        """The delta at which one centre's rotations (SO(3), 8 pi^2 rho^3 in the pose
+        metric) fill ``max_particles`` at :data:`NEAR_SPHERE_ORBIT` particles a ball: 0.18
+        rho at the default cap."""
+        per = NEAR_SPHERE_ORBIT / self.max_particles
+        return float(region._rho() * (8.0 * np.pi**2 * per / ball_volume(3, 1.0)) ** (1.0 / 3.0))
+
+    def _orbit_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float, sym):
+        """The cover of a scale after scales searched as a sphere's (``sym``): an even
+        density on the poses whose surface centre ``sym.center`` lies within
+        ``delta_prev`` of a centre's, at every rotation (the union of the balls around the
+        centres' whole orbits), inside the region; m per delta-ball of its volume in the
+        pose metric, within the floor and the cap. Returns poses and the volume.
+
+        The surface centres are drawn uniformly on the union of their 3-D balls, from the
+        union's bounding box (kept where a centre is within ``delta_prev``) or from the
+        balls (kept with probability 1 / the balls holding the draw), whichever has the
+        smaller volume to draw from; the rotations uniformly (Haar), and the translation
+        keeps the drawn centre.
+        """
+        rng = self.rng
+        c = sym.center
+        P = centers[:, :3, :3] @ c + centers[:, :3, 3]      # the surface centres in the world
+        n_c = len(P)
+        tree = cKDTree(P)
+        r = delta_prev * (1.0 + 1e-9)
+        lo, hi = P.min(axis=0) - delta_prev, P.max(axis=0) + delta_prev
+        v_box, v_balls = float(np.prod(hi - lo)), n_c * ball_volume(3, delta_prev)
+        from_box = v_box <= v_balls
+        v_rot = 8.0 * np.pi**2 * region._rho() ** 3        # SO(3) in the pose metric's measure
+        box_c = np.asarray(region.center, dtype=np.float64)
+        box_h = np.asarray(region.half_extent, dtype=np.float64)
+        kept_q, kept_t, n_drawn, n_kept, target = [], [], 0, 0, self._floor
+        volume = 0.0
+        while n_drawn < self.max_draws:
+            rate = n_kept / n_drawn if n_drawn else 0.5
+            n = int(min(self.max_draws - n_drawn, max(1024, np.ceil(1.25 * (target - n_kept) / max(rate, 1e-3)))))
+            if from_box:
+                p = lo + (hi - lo) * rng.random((n, 3))
+                ok = tree.query(p, distance_upper_bound=r)[0] <= r
+            else:
+                g = rng.normal(size=(n, 3))
+                g /= np.linalg.norm(g, axis=1, keepdims=True)
+                p = P[rng.integers(0, n_c, n)] + g * (delta_prev * rng.random(n) ** (1.0 / 3.0))[:, None]
+                ok = rng.random(n) * np.maximum(tree.query_ball_point(p, r, return_length=True), 1) < 1.0
+            q = rng.normal(size=(n, 4))
+            q /= np.linalg.norm(q, axis=1, keepdims=True)
+            q *= np.where(q[:, 3:] < 0, -1.0, 1.0)
+            t = p - _qrot(q, c)
+            ok &= in_box(t, box_c, box_h)
+            kept_q.append(q[ok])
+            kept_t.append(t[ok])
+            n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
+            volume = (v_box if from_box else v_balls) * v_rot * n_kept / n_drawn
+            target = self._target(self.m * volume / ball_volume(region.dim, delta))
+            if n_kept >= target:
+                break
+        self._acceptance = None  # not the rate of ball draws: the next scale measures its own
+        if n_kept == 0:
+            return centers.copy(), volume
+        q, t = np.concatenate(kept_q), np.concatenate(kept_t)
+        idx = np.arange(n_kept) if n_kept <= target else np.sort(rng.choice(n_kept, target, replace=False))
+        return quat_poses(q, idx.astype(np.int64), t), volume
 
     def _even_density_cover(self, region: PoseRegion, centers, delta_prev: float, delta: float, sym=None):
         """Sample M particles per delta-neighbourhood of the union of delta_prev balls.
@@ -610,10 +716,18 @@ class ScalingSeries:
             raise ValidationError("the region has no free degree of freedom")
         d_star = self.delta_final
         sym = self._symmetry_for(region)
+        # a near-sphere is searched as a sphere at the wide scales (global searches only)
+        near = self._near_sphere_for(region) if sym is None and centers is None else None
+        as_sphere = np.inf if near is None else max(NEAR_SPHERE_SCALES * near.tol, self._orbit_scale(region))
+
+        def sym_at(d, last):
+            return near if (near is not None and not last and d >= as_sphere) else sym
+
         if centers is None:
             delta0 = region.radius()
             n0 = max(self.n_initial, int(self.m * 2))
-            X = self._canonical(region, sym, region.sample(n0, rng=self.rng))
+            sym_prev = sym_at(delta0, False)
+            X = self._canonical(region, sym_prev, region.sample(n0, rng=self.rng))
             first = True
             volume = region.volume()
         else:
@@ -621,6 +735,7 @@ class ScalingSeries:
             delta0 = float(delta0)
             first = False
             volume = np.nan
+            sym_prev = sym
         zoom = 2.0 ** (-1.0 / dim)
         self._acceptance = None
         n_scales = max(0, int(np.floor(dim * np.log2(max(delta0, d_star) / d_star))))
@@ -634,6 +749,7 @@ class ScalingSeries:
             deltas = [d for i, d in enumerate(deltas) if d < wide or i % self.bound_steps == 0]
             n_scales = len(deltas)
         delta = delta0
+        n_near = 0
         steps = progress(range(n_scales + 1), total=n_scales + 1, desc="scaling series", enabled=self.progress)
         for n in steps:
             t0 = time.perf_counter()
@@ -644,10 +760,15 @@ class ScalingSeries:
                 new_delta = deltas[n]
                 gain = _anneal_gain(self.anneal, len(contacts))
                 tau = max(gain * (new_delta / d_star) ** 2, 1.0)
+            sym_n = sym_at(new_delta, last)
             if first:
                 first = False  # the initial uniform draw is the cover of V0
+            elif sym_prev is near and sym_n is not near:
+                X, volume = self._orbit_cover(region, X, delta, new_delta, near)
             else:
-                X, volume = self._even_density_cover(region, X, delta, new_delta, sym)
+                X, volume = self._even_density_cover(region, X, delta, new_delta, sym_n)
+            sym_prev = sym_n
+            n_near += near is not None and sym_n is near
             ll = self._annealed_loglik(X, contacts, tau, prune=not last, delta=new_delta)
             lw = ll.copy()
             if last and log_prior is not None:
@@ -658,7 +779,7 @@ class ScalingSeries:
                 # the final cover's volume (metric units): each particle stands for volume / N,
                 # which turns the weights into an evidence estimate (see belief.identify)
                 belief.info.update(delta_final=d_star, n_scales=n_scales, cover_volume=float(volume),
-                                   log_likelihood=ll)
+                                   log_likelihood=ll, near_sphere_scales=n_near)
                 flag_degenerate(belief, float(ll.max()), contacts)
                 if self.final_moves > 0:
                     belief = self._posterior(belief, contacts, region, log_prior, sym)

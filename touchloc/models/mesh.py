@@ -286,6 +286,15 @@ class MeshObject:
             self._cache["sphere"] = _find_sphere(self)
         return self._cache["sphere"]
 
+    def _near_sphere(self):
+        """The sphere's symmetry at the tolerance this surface passes it with (its
+        deviation from a sphere, :func:`touchloc.models.symmetry._near_sphere`; cached)."""
+        if "near sphere" not in self._cache:
+            from .symmetry import _near_sphere
+
+            self._cache["near sphere"] = _near_sphere(self)
+        return self._cache["near sphere"]
+
     def bvh(self, normal_weight: float):
         """The cached bounding-volume hierarchy used by exact queries.
 
