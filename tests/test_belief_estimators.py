@@ -291,7 +291,7 @@ def test_scaling_series_searches_a_near_sphere_as_a_sphere_at_wide_scales_only(o
     keeps one pose per position of its centre, then covers every rotation around the
     centres found, so the answer is a belief over full poses, as accurate as the search
     over every pose, from fewer evaluations. A mug is not searched so (its rotations at
-    twice its deviation fill a few hundred balls), nor is any object with ``symmetry=None``
+    twice its deviation fill about 40 balls), nor is any object with ``symmetry=None``
     or in a yaw-only region."""
     lemon = objects["lemon"]
     region = PoseRegion.box((0, 0, 0), 0.1, "full")

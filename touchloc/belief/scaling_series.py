@@ -311,7 +311,7 @@ class ScalingSeries:
         ball within the cap: a turn the contacts favour is then not missed. Used only
         where it saves: where a single centre's rotations, at twice ``tol``, would fill
         the particle cap at m a ball (a lemon, 12 % off a sphere, but not a box or a mug,
-        whose rotations at twice their deviation take a few hundred balls).
+        whose rotations at twice their deviation take 40-150 balls).
         """
         if not (self._NEAR_SPHERE and isinstance(self.symmetry, str) and region.rotation == "full"
                 and region.dim == 6):
