@@ -411,8 +411,8 @@ def _near_sphere(obj) -> Symmetry:
     """The sphere's symmetry at the tolerance ``obj`` passes it with: the largest, over
     random rotations about the surface centroid, of the sphere test's displacement (the
     :data:`_QUANTILE` of the moved surface samples' distances to the surface), with
-    :func:`find_symmetries`' samples. A lemon 45 x 40 x 40 mm deviates 2.5 mm, a box or a
-    mug a third of their size.
+    :func:`find_symmetries`' samples. A lemon 45 x 40 x 40 mm deviates 2.5 mm; a box or a
+    mug a fifth to two fifths of its size.
 
     Every rotation about the centroid moves the surface by about ``tol`` or less, so a
     search that resolves no finer than a few times ``tol`` may take the object for a
