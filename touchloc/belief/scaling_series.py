@@ -335,7 +335,11 @@ class ScalingSeries:
         density on the poses whose surface centre ``sym.center`` lies within
         ``delta_prev`` of a centre's, at every rotation (the union of the balls around the
         centres' whole orbits), inside the region; m per delta-ball of its volume in the
-        pose metric, within the floor and the cap. Returns poses and the volume.
+        pose metric, from the floor up to m times the particle cap (one centre's orbit
+        holds at most ``max_particles / NEAR_SPHERE_ORBIT`` balls here, see
+        :meth:`_orbit_scale`; capped at ``max_particles`` like the other covers, these
+        rotations were too sparse for the annealed posterior at 60 contacts, and a turn
+        the contacts favour was lost). Returns poses and the volume.
 
         The surface centres are drawn uniformly on the union of their 3-D balls, from the
         union's bounding box (kept where a centre is within ``delta_prev``) or from the
@@ -355,11 +359,13 @@ class ScalingSeries:
         v_rot = 8.0 * np.pi**2 * region._rho() ** 3        # SO(3) in the pose metric's measure
         box_c = np.asarray(region.center, dtype=np.float64)
         box_h = np.asarray(region.half_extent, dtype=np.float64)
+        most = max(self._floor, int(np.ceil(self.m * self.max_particles / NEAR_SPHERE_ORBIT)))
+        budget = max(self.max_draws, 4 * most)
         kept_q, kept_t, n_drawn, n_kept, target = [], [], 0, 0, self._floor
         volume = 0.0
-        while n_drawn < self.max_draws:
+        while n_drawn < budget:
             rate = n_kept / n_drawn if n_drawn else 0.5
-            n = int(min(self.max_draws - n_drawn, max(1024, np.ceil(1.25 * (target - n_kept) / max(rate, 1e-3)))))
+            n = int(min(budget - n_drawn, max(1024, np.ceil(1.25 * (target - n_kept) / max(rate, 1e-3)))))
             if from_box:
                 p = lo + (hi - lo) * rng.random((n, 3))
                 ok = tree.query(p, distance_upper_bound=r)[0] <= r
@@ -377,7 +383,7 @@ class ScalingSeries:
             kept_t.append(t[ok])
             n_drawn, n_kept = n_drawn + n, n_kept + int(ok.sum())
             volume = (v_box if from_box else v_balls) * v_rot * n_kept / n_drawn
-            target = self._target(self.m * volume / ball_volume(region.dim, delta))
+            target = int(np.clip(round(self.m * volume / ball_volume(region.dim, delta)), self._floor, most))
             if n_kept >= target:
                 break
         self._acceptance = None  # not the rate of ball draws: the next scale measures its own
