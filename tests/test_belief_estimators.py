@@ -286,6 +286,16 @@ def test_scaling_series_searches_one_pose_per_class_of_a_symmetric_object(object
         ScalingSeries(model, symmetry="yes")
 
 
+def _surface_trial(obj, region, k, seed, pos_sd, nor_sd):
+    """A pose drawn from the region and k surface contacts with Gaussian noise on their
+    points (m) and normal vectors (each component), from ``seed``."""
+    rng = np.random.default_rng(seed)
+    true = region.sample(1, rng=rng)[0]
+    p, n, _ = obj.sample_surface(k, rng=rng)
+    c = Contacts(p + rng.normal(scale=pos_sd, size=p.shape), n + rng.normal(scale=nor_sd, size=n.shape))
+    return true, c.transform(true)
+
+
 def test_scaling_series_searches_a_near_sphere_as_a_sphere_at_wide_scales_only(objects):
     """The lemon is 2.5 mm off a sphere: at scales at least twice that wide the search
     keeps one pose per position of its centre, then covers every rotation around the
@@ -297,11 +307,7 @@ def test_scaling_series_searches_a_near_sphere_as_a_sphere_at_wide_scales_only(o
     region = PoseRegion.box((0, 0, 0), 0.1, "full")
     model = ProximityModel(lemon, 0.002, np.deg2rad(5))
     for seed in (3, 4):
-        rng = np.random.default_rng(seed)
-        true = region.sample(1, rng=rng)[0]
-        p, n, _ = lemon.sample_surface(20, rng=rng)
-        c = Contacts(p + rng.normal(scale=0.002, size=p.shape), n + rng.normal(scale=0.06, size=n.shape))
-        c = c.transform(true)
+        true, c = _surface_trial(lemon, region, 20, seed, 0.002, 0.06)
         steps = list(ScalingSeries(model, rng=0, progress=False).iterate(c, region))
         on, off = steps[-1].belief, ScalingSeries(model, rng=0, progress=False, symmetry=None).localize(c, region)
         # searched as a sphere down to twice its deviation, or to where one centre's
@@ -358,12 +364,7 @@ def test_a_near_sphere_keeps_the_true_turn_with_many_contacts(objects):
     region = PoseRegion.box((0, 0, 0), 0.2, "full")
     model = ProximityModel(lemon, 0.002, np.deg2rad(5))
     for seed in (100703, 100708):
-        rng = np.random.default_rng(seed)
-        true = region.sample(1, rng=rng)[0]
-        p, n, _ = lemon.sample_surface(60, rng=rng)
-        p = p + rng.normal(scale=0.002, size=p.shape)
-        n = n + rng.normal(scale=np.radians(5) / np.sqrt(2), size=n.shape)
-        c = Contacts(p, n).transform(true)
+        true, c = _surface_trial(lemon, region, 60, seed, 0.002, np.radians(5) / np.sqrt(2))
         b = ScalingSeries(model, rng=seed, progress=False).localize(c, region)
         assert b.info["near_sphere_scales"] > 0
         ll_true, ll_map = model.log_likelihood(np.stack([true, b.map_pose()]), c)
