@@ -38,19 +38,20 @@ PLANAR = [
 ]
 
 
-def trial(obj, region, k, seed):
-    """A hidden pose uniform in the region and k noisy contacts (2 mm, 5 deg), from ``seed``.
+def trial(obj, region, k, seed, noise=(0.002, 5.0)):
+    """A hidden pose uniform in the region and k noisy contacts (``noise``: m, deg; 2 mm,
+    5 deg by default), from ``seed``.
 
-    Kept for bench_speed, which times estimators on these contacts; this benchmark's own
-    trials draw the same kind of data inside ``touchloc.experiments.run_trial``.
+    Kept for bench_speed and the studies, which time estimators on these contacts; this
+    benchmark's own trials draw the same kind of data inside ``touchloc.experiments.run_trial``.
     """
     from touchloc.models import Contacts
 
     rng = np.random.default_rng(seed)
     true = region.sample(1, rng=rng)[0]
     p, n, _ = obj.sample_surface(k, rng=rng)
-    p = p + rng.normal(scale=0.002, size=p.shape)
-    n = n + rng.normal(scale=np.radians(5) / np.sqrt(2), size=n.shape)
+    p = p + rng.normal(scale=noise[0], size=p.shape)
+    n = n + rng.normal(scale=np.radians(noise[1]) / np.sqrt(2), size=n.shape)
     return true, Contacts(p, n).transform(true)
 
 

@@ -94,20 +94,10 @@ def _obj(mesh):
     return _CACHE[mesh]
 
 
-def _contacts(obj, region, k, seed, noise):
-    from touchloc.models import Contacts
-
-    rng = np.random.default_rng(seed)
-    true = region.sample(1, rng=rng)[0]
-    p, n, _ = obj.sample_surface(k, rng=rng)
-    p = p + rng.normal(scale=noise[0], size=p.shape)
-    n = n + rng.normal(scale=np.radians(noise[1]) / np.sqrt(2), size=n.shape)
-    return true, Contacts(p, n).transform(true)
-
-
 def _one(job):
     mesh, k, seed, noise, arms = job
     warnings.simplefilter("ignore")
+    from bench_localization import trial
     from touchloc.belief import PoseRegion, ScalingSeries, add_s, hpd_level
     from touchloc.belief import scaling_series
     from touchloc.models import ProximityModel
@@ -115,7 +105,7 @@ def _one(job):
     obj = _obj(mesh)
     region = PoseRegion.box((0, 0, 0), 0.2, "full")
     model = ProximityModel(obj, 0.002, np.deg2rad(5))
-    true, c = _contacts(obj, region, k, seed, noise)
+    true, c = trial(obj, region, k, seed, noise)
     out = []
     for arm in arms:
         ss = ScalingSeries(model, rng=seed, progress=False)
