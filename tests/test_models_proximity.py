@@ -337,11 +337,11 @@ def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exa
         table = grid.near_cells
         assert table.shape == (int(np.prod(grid.shape[0])), 8) and (table[:, 7] == 0).all()
         bits = np.array([[K._popcount(x) for x in r[:6]] for r in table]).sum(axis=1)
-        assert bits.sum() == len(grid.near_off) - 1 > 0
+        assert bits.sum() == len(grid.near_entries) > 0
         # each cell's first entry follows the entries of the cells before it
         assert np.array_equal(table[bits > 0, 6].astype(np.int64), np.cumsum(bits)[bits > 0] - bits[bits > 0])
-        assert np.all(np.diff(grid.near_off) > 0) and grid.near_off[-1] == len(grid.near_ids)
-        assert 0 <= grid.near_ids.min() and grid.near_ids.max() < len(grid.tri)
+        off, ids = K.unpack_near_lists(grid.near_entries, grid.near_ids, len(grid.tri))
+        assert np.all(np.diff(off) > 0) and 0 <= ids.min() and ids.max() < len(grid.tri)
         # the lists passed their own check
         answered, near_off, _, general_off, kept = grid.near_check
         assert kept == 1 and answered > 0.95 and near_off <= max(K.NEAR_CHECK_SHARE, general_off)
@@ -442,7 +442,30 @@ def test_near_lists_hold_every_triangle_of_a_flat_side_that_crosses_their_cell(o
     err = near[found] / model.sigma_pos**2 - exact[found]
     assert err.min() > -1e-9 and np.mean(err > 0.1) <= 0.001 and np.percentile(err, 99.5) < 1e-9
     # the lists stay short: a face and its few coplanar neighbours
-    assert np.mean(np.diff(grid.near_off)) < 3.0
+    off, _ = K.unpack_near_lists(grid.near_entries, grid.near_ids, len(grid.tri))
+    assert np.mean(np.diff(off)) < 3.0
+
+
+@pytest.mark.parametrize("n_faces", [3, 254, 255, 528, 1023, 65534, 65535, 3_000_000])
+def test_packed_near_lists_give_back_every_list(n_faces):
+    """Each near list packs into one uint64 entry, or, when longer than the entry holds,
+    apart: unpacking gives back every list, face for face, at every id width (8 bits for
+    the smallest meshes up to 22 for millions of faces), with lists at the longest that
+    fit and one face longer."""
+    from touchloc.models import _kernels as K
+
+    rng = np.random.default_rng(n_faces)
+    slots = 64 // K.near_width(n_faces)
+    assert K.near_width(n_faces) == max(8, int(np.ceil(np.log2(n_faces + 2))))
+    lengths = np.r_[rng.integers(1, 3 * slots, size=300), slots, slots + 1, 1]
+    off = np.r_[0, np.cumsum(lengths)]
+    ids = rng.integers(0, n_faces, size=off[-1])
+    ids[:2] = n_faces - 1  # the largest id sits beside the two codes
+    entries, over = K.pack_near_lists(off, ids, n_faces)
+    assert entries.dtype == np.uint64 and len(entries) == len(lengths)
+    assert len(over) == int(np.sum(lengths[lengths > slots] + 1))
+    back_off, back_ids = K.unpack_near_lists(entries, over, n_faces)
+    assert np.array_equal(back_off, off) and np.array_equal(back_ids, ids)
 
 
 def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
@@ -461,7 +484,7 @@ def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
     grid = model._grid(w)
     answered, near_off, _, general_off, kept = grid.near_check
     assert kept == 0 and near_off > max(K.NEAR_CHECK_SHARE, general_off)
-    assert len(grid.near_cells) == 0 and len(grid.near_ids) == 0
+    assert len(grid.near_cells) == 0 and len(grid.near_entries) == 0 and len(grid.near_ids) == 0
     P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=4000, seed=7)
     found, _ = K.near_list_costs(grid, P, N)
     assert not found.any()

@@ -593,13 +593,29 @@ def cube_bin_directions():
 
 
 @nb.njit(inline="always", **_NB)
+def _near_face(planes, tri, nrm, f, px, py, pz, nx, ny, nz, w, best, bf):
+    """(best cost, its face) after trying face f of a near list: the plane-and-edges bound
+    first, which is the cost itself where the point projects into the triangle."""
+    lb, exact = _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w)
+    if lb >= best:
+        return best, bf
+    if exact:
+        return lb, f
+    c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
+    if c < best:
+        return c, f
+    return best, bf
+
+
+@nb.njit(inline="always", **_NB)
 def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
     """The best face of the normal-keyed list of a finest-level ``cell`` for this query.
 
-    ``near`` = (cells, off, ids, planes) of :class:`CandidateGrid`. Returns (found, cost,
-    face); ``found`` is False where the cell or the query's bin has no list.
+    ``near`` = (cells, entries, over, planes, width) of :class:`CandidateGrid` (see
+    :func:`pack_near_lists`). Returns (found, cost, face); ``found`` is False where the
+    cell or the query's bin has no list.
     """
-    cells, off, ids, planes = near
+    cells, entries, over, planes, width = near
     if cell >= cells.shape[0]:
         return False, np.inf, -1
     side, bit = _cube_bin(nx, ny, nz)
@@ -614,19 +630,94 @@ def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
         e += _popcount(cells[cell, s])
     best = np.inf
     bf = -1
-    for j in range(off[e], off[e + 1]):
-        f = ids[j]
-        lb, exact = _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w)
-        if lb >= best:
-            continue
-        if exact:
-            c = lb
-        else:
-            c, _, _, _ = _face_cost(tri, nrm, f, px, py, pz, nx, ny, nz, w)
-        if c < best:
-            best = c
-            bf = f
+    v = entries[e]
+    b = np.uint64(width)
+    empty = (np.uint64(1) << b) - np.uint64(1)
+    if (v & empty) == empty - np.uint64(1):  # a long list, kept apart: its length, then its faces
+        o = np.int64(v >> b)
+        for j in range(o + 1, o + 1 + np.int64(over[o])):
+            best, bf = _near_face(planes, tri, nrm, np.int64(over[j]), px, py, pz, nx, ny, nz, w, best, bf)
+        return True, best, bf
+    for s in range(64 // width):
+        f = (v >> (b * np.uint64(s))) & empty
+        if f == empty:
+            break
+        best, bf = _near_face(planes, tri, nrm, np.int64(f), px, py, pz, nx, ny, nz, w, best, bf)
     return True, best, bf
+
+
+def near_width(n_faces: int) -> int:
+    """Bits per face id in a packed near-list entry (:func:`pack_near_lists`): room for
+    every face id and two codes above them, at least 8."""
+    return max(8, int(n_faces + 1).bit_length())
+
+
+def pack_near_lists(off, ids, n_faces: int):
+    """The near lists (list e: faces ``ids[off[e]:off[e + 1]]``) packed one uint64 entry a
+    list, so that a query reads its faces from the entry it finds (one memory access
+    fewer; docs/benchmarks.md, "Packed near lists").
+
+    Face ids take ``b = near_width(n_faces)`` bits each. A list of at most ``64 // b``
+    faces sits in its entry, slot s in bits [b s, b s + b), its unused slots all ones. A
+    longer list sits in ``over`` (int32) as its length and then its faces; its entry holds
+    all ones but the lowest bit in slot 0 and the list's index in ``over`` above it.
+    Returns (entries, over).
+    """
+    off = np.asarray(off, dtype=np.int64)
+    ids = np.asarray(ids, dtype=np.int64)
+    b = near_width(n_faces)
+    slots = 64 // b
+    empty = (1 << b) - 1
+    lengths = np.diff(off)
+    n = len(lengths)
+    owner = np.repeat(np.arange(n), lengths)
+    slot = np.arange(len(ids)) - off[owner]
+    short = lengths <= slots
+    table = np.full((n, slots), empty, np.uint64)
+    keep = short[owner]
+    table[owner[keep], slot[keep]] = ids[keep].astype(np.uint64)
+    entries = np.zeros(n, np.uint64)
+    for s in range(slots):
+        entries |= table[:, s] << np.uint64(b * s)
+    long_ = np.flatnonzero(~short)
+    over = np.zeros(0, np.int32)
+    if len(long_):
+        sizes = lengths[long_] + 1
+        at = np.zeros(len(long_) + 1, np.int64)
+        np.cumsum(sizes, out=at[1:])
+        over = np.empty(int(at[-1]), np.int32)
+        over[at[:-1]] = lengths[long_]
+        member = ~keep
+        over[np.repeat(at[:-1] + 1, lengths[long_]) + slot[member]] = ids[member]
+        entries[long_] = np.uint64(empty - 1) | (at[:-1].astype(np.uint64) << np.uint64(b))
+    return entries, over
+
+
+def unpack_near_lists(entries, over, n_faces: int):
+    """The lists that :func:`pack_near_lists` packed, as (off, ids): list e holds the
+    faces ``ids[off[e]:off[e + 1]]``, in entry order (for tests and diagnostics)."""
+    entries = np.asarray(entries, dtype=np.uint64)
+    over = np.asarray(over, dtype=np.int64)
+    b = near_width(n_faces)
+    slots = 64 // b
+    empty = (1 << b) - 1
+    low = (entries & np.uint64(empty)).astype(np.int64)
+    long_ = low == empty - 1
+    table = np.stack([(entries >> np.uint64(b * s)) & np.uint64(empty) for s in range(slots)], axis=1).astype(np.int64)
+    used = (table != empty) & ~long_[:, None]
+    at = (entries[long_] >> np.uint64(b)).astype(np.int64)
+    lengths = used.sum(axis=1)
+    lengths[long_] = over[at]
+    off = np.zeros(len(entries) + 1, np.int64)
+    np.cumsum(lengths, out=off[1:])
+    ids = np.empty(int(off[-1]), np.int64)
+    short = np.flatnonzero(~long_)
+    ids[(off[short][:, None] + np.arange(slots))[used[short]]] = table[short][used[short]]
+    if len(at):
+        n = over[at]
+        ids[np.repeat(off[:-1][long_], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)] = \
+            over[np.repeat(at + 1, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    return off, ids
 
 
 #: a sample point with more faces than this within the sample bound queries the tree; a
@@ -859,7 +950,8 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
     for a mesh whose sample points mostly have more than :data:`_NEAR_CROWD` faces within
     that cost's reach, else the :class:`CandidateGrid` fields ``near_cells`` (cells, 8) uint64 (per cell of the level:
     6 words, bit b of word s set where side s's bin b has a list, then the entry of its
-    first list), ``near_off`` and ``near_ids`` (the lists, tree-order faces) and
+    first list), ``near_entries`` and ``near_ids`` (the lists of tree-order faces, packed by
+    :func:`pack_near_lists`) and
     ``planes`` (:func:`face_planes`).
     """
     lo = np.asarray(lo, dtype=np.float64)
@@ -915,8 +1007,8 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
         table[cells, :6] = np.bitwise_or.reduce(bits, axis=2)
         per_cell = has.sum(axis=1)
         table[cells, 6] = np.concatenate([[0], np.cumsum(per_cell)[:-1]]).astype(np.uint64)
-    return dict(near_cells=table, near_off=off.astype(np.int32), near_ids=ids.astype(np.int32),
-                planes=face_planes(tree.tri, tree.nrm))
+    entries, over = pack_near_lists(off, ids, len(tree.tri))
+    return dict(near_cells=table, near_entries=entries, near_ids=over, planes=face_planes(tree.tri, tree.nrm))
 
 
 @nb.njit(**_NB)
@@ -979,13 +1071,13 @@ def _bvh_query_costs(tri, nrm, plo, phi, nlo, nhi, left, right, start, count, P,
                                       P[q, 0], P[q, 1], P[q, 2], N[q, 0], N[q, 1], N[q, 2], w, np.inf)
 
 
-def _near_tuple(d):
-    return (d["near_cells"], d["near_off"], d["near_ids"], d["planes"])
+def _near_tuple(d, n_faces: int):
+    return (d["near_cells"], d["near_entries"], d["near_ids"], d["planes"], near_width(n_faces))
 
 
 def no_near_lists():
     """The near-list fields of a grid without them."""
-    return dict(near_cells=np.zeros((0, 8), np.uint64), near_off=np.zeros(1, np.int32),
+    return dict(near_cells=np.zeros((0, 8), np.uint64), near_entries=np.zeros(0, np.uint64),
                 near_ids=np.zeros(0, np.int32), planes=np.zeros((1, 16)))
 
 
@@ -1010,8 +1102,8 @@ class CandidateGrid:
     longest: int  # the longest cell list (the width of a query's scratch row)
     # normal-keyed lists of the finest level's cells near the surface (build_near_lists)
     near_cells: np.ndarray
-    near_off: np.ndarray
-    near_ids: np.ndarray
+    near_entries: np.ndarray  # one packed uint64 a list (pack_near_lists)
+    near_ids: np.ndarray  # the lists too long to pack: length, then faces
     planes: np.ndarray
     # their check against the exact method (build_candidate_grid): share of the queries
     # answered, share off by more than NEAR_CHECK_ERROR, 99th percentile of the error, the
@@ -1022,7 +1114,7 @@ class CandidateGrid:
     @property
     def near(self) -> tuple:
         """The near lists as the kernels take them."""
-        return _near_tuple(self.__dict__)
+        return _near_tuple(self.__dict__, len(self.tri))
 
     def scratch(self) -> np.ndarray:
         """One scratch row per numba thread for the lists' bounds (see :func:`_list_best`)."""
@@ -1492,7 +1584,7 @@ def _no_grid():
     if _NO_GRID is None:
         z = np.zeros(1, np.int64)
         _NO_GRID = (np.zeros((1, 3)), np.ones(1), np.zeros((1, 3), np.int64), z, np.zeros(2, np.int64), z,
-                    np.zeros(2, np.int64), z, _near_tuple(no_near_lists()))
+                    np.zeros(2, np.int64), z, _near_tuple(no_near_lists(), 0))
     return _NO_GRID
 
 
