@@ -30,6 +30,13 @@ AUTO_FAST_PAIRS = 2_000
 #: The fast grid's coarser levels: (reach beyond the mesh bounds in largest extents, cell
 #: size as a multiple of the finest level's). Queries beyond the last use the exact tree.
 COARSE_LEVELS = ((2.0, 4.0), (8.0, 16.0))
+#: the default finest cell: a 24th of the largest extent, but at least this many
+#: ``sigma_pos`` (up to an 8th of the extent). Cells finer than the noise multiply the
+#: near lists (their reach is a few sigma) and their waits on memory without making them
+#: shorter: on meshes under 72 mm at sigma_pos = 2 mm, 1.5 sigma gave 1.0-1.25x faster
+#: likelihood passes, 2-10x faster builds and 1.5-5x less memory at the same accuracy
+#: (docs/benchmarks.md, "Finest cells no finer than the noise (study)")
+GRID_CELL_SIGMAS = 1.5
 
 
 def contacts_in_object_frame(poses: np.ndarray, contacts: Contacts):
@@ -78,7 +85,8 @@ class ProximityModel(MeasurementModel):
         it, the exact evaluation. ``bruteforce``: every face (reference, slow).
         ``auto``: ``fast`` for calls with many pose-contact pairs, else ``exact``.
     grid_cell : float, optional
-        Cell size of the fast grid's finest level (m); default: largest extent / 24.
+        Cell size of the fast grid's finest level (m); default: largest extent / 24, but
+        at least 1.5 ``sigma_pos`` (:data:`GRID_CELL_SIGMAS`; at most largest extent / 8).
     grid_margin : float, optional
         How far the finest level reaches beyond the mesh bounds (m); default: a quarter of
         the largest extent.
@@ -134,7 +142,8 @@ class ProximityModel(MeasurementModel):
         self.sigma_nor = None if sigma_nor is None else float(sigma_nor)
         self.method = method
         ext = float(obj.extents.max())
-        self.grid_cell = ext / 24.0 if grid_cell is None else as_positive_float(grid_cell, "grid_cell (m)")
+        self.grid_cell = (max(ext / 24.0, min(GRID_CELL_SIGMAS * self.sigma_pos, ext / 8.0)) if grid_cell is None
+                          else as_positive_float(grid_cell, "grid_cell (m)"))
         self.grid_margin = (0.25 * ext if grid_margin is None
                             else as_nonnegative_float(grid_margin, "grid_margin (m)"))
         self.grid_normals = as_count(grid_normals, "grid_normals", max=100_000,
