@@ -468,6 +468,21 @@ def test_packed_near_lists_give_back_every_list(n_faces):
     assert np.array_equal(back_off, off) and np.array_equal(back_ids, ids)
 
 
+def test_the_default_finest_cell_is_no_finer_than_the_noise(objects):
+    """The fast grid's default finest cell: a 24th of the largest extent, but at least 1.5
+    sigma_pos and at most an 8th of the extent; a given cell is kept as given."""
+    from touchloc.models.proximity import GRID_CELL_SIGMAS
+
+    lemon, mug = objects["lemon"], objects["mug"]
+    ext = float(lemon.extents.max())
+    assert ext / 24 < GRID_CELL_SIGMAS * 0.002 < ext / 8
+    assert ProximityModel(lemon, 0.002, 0.1).grid_cell == pytest.approx(GRID_CELL_SIGMAS * 0.002)
+    assert ProximityModel(lemon, 0.0005, 0.1).grid_cell == pytest.approx(ext / 24)
+    assert ProximityModel(lemon, 0.05, 0.1).grid_cell == pytest.approx(ext / 8)
+    assert ProximityModel(mug, 0.002, 0.1).grid_cell == pytest.approx(float(mug.extents.max()) / 24)
+    assert ProximityModel(lemon, 0.002, 0.1, grid_cell=0.001).grid_cell == 0.001
+
+
 def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
     """A mesh whose faces are small against the cells (a finely tessellated torus) fails the
     lists' check (their answers are off more often than the general lists'): it keeps none,

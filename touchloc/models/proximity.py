@@ -33,8 +33,8 @@ COARSE_LEVELS = ((2.0, 4.0), (8.0, 16.0))
 #: the default finest cell: a 24th of the largest extent, but at least this many
 #: ``sigma_pos`` (up to an 8th of the extent). Cells finer than the noise multiply the
 #: near lists (their reach is a few sigma) and their waits on memory without making them
-#: shorter: on meshes under 72 mm at sigma_pos = 2 mm, 1.5 sigma gave 1.0-1.25x faster
-#: likelihood passes, 2-10x faster builds and 1.5-5x less memory at the same accuracy
+#: shorter: on meshes under 72 mm at sigma_pos = 2 mm, 1.5 sigma gave 1.00-1.27x faster
+#: likelihood passes, 2-8x faster builds and 1.5-5x less memory at the same accuracy
 #: (docs/benchmarks.md, "Finest cells no finer than the noise (study)")
 GRID_CELL_SIGMAS = 1.5
 
