@@ -655,7 +655,7 @@ def near_width(n_faces: int) -> int:
 def pack_near_lists(off, ids, n_faces: int):
     """The near lists (list e: faces ``ids[off[e]:off[e + 1]]``) packed one uint64 entry a
     list, so that a query reads its faces from the entry it finds (one memory access
-    fewer; docs/benchmarks.md, "Packed near lists").
+    fewer; docs/benchmarks.md, "Localisation speed with few contacts").
 
     Face ids take ``b = near_width(n_faces)`` bits each. A list of at most ``64 // b``
     faces sits in its entry, slot s in bits [b s, b s + b), its unused slots all ones. A
