@@ -715,8 +715,8 @@ def unpack_near_lists(entries, over, n_faces: int):
     ids[(off[short][:, None] + np.arange(slots))[used[short]]] = table[short][used[short]]
     if len(at):
         n = over[at]
-        ids[np.repeat(off[:-1][long_], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)] = \
-            over[np.repeat(at + 1, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+        within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)  # each face's place in its list
+        ids[np.repeat(off[:-1][long_], n) + within] = over[np.repeat(at + 1, n) + within]
     return off, ids
 
 
