@@ -121,7 +121,7 @@ def _cell_kwargs(cell):
 
 
 #: data sets per object and cell in the sweep (seeds [2, ...]) and in its held-out run (seeds
-#: [3, ...]): in the cells that fail, one data set's right count can be anywhere from 30 to
+#: [3, ...]): in the cells that fail, one data set's right count can be anywhere from 0 to
 #: 100 %, so a cell's figure needs several
 SWEEP_SETS, HELD_OUT_SETS = 6, 4
 
