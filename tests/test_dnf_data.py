@@ -43,6 +43,34 @@ def test_generator_is_reproducible_and_seeds_differ():
     assert len(a) != len(c) or not np.array_equal(a.normal_angles, c.normal_angles)
 
 
+@pytest.mark.parametrize("per_contact", [None, 2])
+def test_without_edge_normals_only_the_edge_landings_go(per_contact):
+    kw = dict(revolutions=2, normals_per_contact=per_contact, noise=3 * DEG, drop=0.1)
+    if per_contact:
+        kw["normal_source"] = "pad"
+    full = generate_rotation_dataset(8, rng=4, **kw)
+    sides = generate_rotation_dataset(8, rng=4, edge_normals=False, **kw)
+    # the same experiment: samples, odometry and truth; the normals a subset
+    assert len(full) == len(sides)
+    np.testing.assert_array_equal(full.odometry, sides.odometry)
+    np.testing.assert_array_equal(full.true_orientation, sides.true_orientation)
+    assert 0 < sides.normal_angles.size < 0.9 * full.normal_angles.size
+    assert np.isin(sides.normal_angles, full.normal_angles).all()
+
+    def far_from_sides(ds):
+        obj = ds.normal_angles - ds.true_orientation[ds.sample_index]
+        return np.mean(np.abs((obj + np.pi / 8) % (np.pi / 4) - np.pi / 8) > 14 * DEG)
+    # what goes is the broad spread of the edges (an 8-gon's reach 18 deg from the edge,
+    # 4.5 deg from a side); 14 deg is more than 3 sd of a side's normals here
+    assert far_from_sides(full) > 0.08
+    assert far_from_sides(sides) < 0.01
+    # a round object has no edges: nothing changes
+    np.testing.assert_array_equal(generate_rotation_dataset(0, rng=4, edge_normals=False, **kw).normal_angles,
+                                  generate_rotation_dataset(0, rng=4, **kw).normal_angles)
+    with pytest.raises(ValidationError, match="edge_normals"):
+        generate_rotation_dataset(8, edge_normals="no")
+
+
 def test_round_object_normals_sweep_through_the_object_frame():
     ds = generate_rotation_dataset(0, rng=2)
     obj = (ds.normal_angles - ds.true_orientation[ds.sample_index]) % (2 * np.pi)

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util import as_rng
-from .._validate import (as_count, as_float, as_float_array, as_instance, as_name, as_nonnegative_float,
+from .._validate import (as_bool, as_count, as_float, as_float_array, as_instance, as_name, as_nonnegative_float,
                          as_path, as_positive_float, as_probability, as_sequence)
 from ..errors import ValidationError
 
@@ -167,7 +167,7 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
                               step=np.radians(4.0), face_fraction: float = 0.6,
                               normals_per_contact=None, noise: float = np.radians(2.0), drop: float = 0.0,
                               normal_source: str = "face", pad_radius: float = 0.02,
-                              centroid_std: float = 0.001, name: str = "",
+                              centroid_std: float = 0.001, edge_normals: bool = True, name: str = "",
                               rng=None) -> RotationDataset:
     """Simulate the rotation experiment of seed 000, section IV.
 
@@ -239,6 +239,11 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     pad_radius, centroid_std : float
         Radius of curvature of the finger pad and standard deviation of the blob
         centroid's position on it, m (``normal_source="pad"`` only).
+    edge_normals : bool
+        False: a finger that landed on an edge reports no normals (its sample is as it
+        would be otherwise, with that finger's normals left out; the random draws are the
+        same, so the data set differs from the one with ``True`` only there). A probe of how
+        much of a tracker's error comes from edges taken for sides; a real hand cannot do it.
     name : str
         Label of the data set.
     rng : None, int or numpy Generator
@@ -261,6 +266,7 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
     drop = as_probability(drop, "drop", open_high=True)
     pad_radius = as_positive_float(pad_radius, "pad_radius (m)")
     centroid_std = as_nonnegative_float(centroid_std, "centroid_std (m)")
+    edge_normals = as_bool(edge_normals, "edge_normals")
     name = as_name(name, "name", allow_none=False)
     n_samples = TWO_PI * revolutions * max(2.0 / stroke[0], 1.3 / step)
     if n_samples > MAX_SAMPLES:
@@ -314,8 +320,8 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
                         tilt = rng.normal(0.0, np.radians(1.0))
                         parts.append(a + theta + tilt + rng.normal(0.0, noise, 12))
                     elif kind == "edge":
-                        parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, 6)
-                                     + rng.normal(0.0, noise, 6))
+                        e = a + theta + rng.uniform(-0.8 * half, 0.8 * half, 6) + rng.normal(0.0, noise, 6)
+                        parts.append(e if edge_normals else e[:0])
                     else:
                         parts.append(a + rng.normal(0.0, np.radians(8.0), 6))
                     continue
@@ -324,7 +330,8 @@ def generate_rotation_dataset(n_sides: int, *, revolutions: float = 4.0, rate_hz
                 if kind == "face":
                     parts.append(a + theta + err)
                 elif kind == "edge":
-                    parts.append(a + theta + rng.uniform(-0.8 * half, 0.8 * half, m) + err)
+                    e = a + theta + rng.uniform(-0.8 * half, 0.8 * half, m) + err
+                    parts.append(e if edge_normals else e[:0])
                 else:
                     parts.append(a + err)
             a = np.concatenate(parts) if not dropped else np.empty(0)

@@ -1,0 +1,128 @@
+"""Which of the DNF sweep's failing cells fail in tracking, and which in mapping.
+
+The DNF tracker (default parameters) runs on the development seeds
+``[11, cell, object, set]`` (neither the sweep's nor the held-out seeds of
+``bench_dnf.py``) of the chosen cells of the robustness sweep, under four versions of
+the same data sets:
+
+* **as generated**;
+* **edge landings removed**: ``generate_rotation_dataset(..., edge_normals=False)``, so
+  the fingers that landed on an edge report nothing (the random draws are the same);
+* **true rotation as odometry**: the data set's odometry replaced by its true rotation,
+  regrasp slips included, and the tracker's rate prior set to 0 (nothing to learn);
+* **both**.
+
+A cell that passes with the true rotation fails in tracking; a cell that does not fails
+in mapping. The table gives the right count in the second half for the 4-, 5-, 6-,
+8-gon and the round object (mean over the data sets). ``--counts`` adds, for each
+(cell, object) below 90 %, the share of the second half at each count and the right
+count of each data set. The figures are in docs/dnf.md ("Fourth round").
+
+    cd benchmarks
+    ../.venv/bin/python study_dnf_probes.py --cells "1 normal" base "6 deg" "3 deg slip" \
+        --sets 0-7 --counts
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_dnf import _BASE, _SWEEP_OBJECTS, _cell_kwargs  # noqa: E402
+
+#: the cells by name (one knob moved from the sweep's base cell)
+CELLS = {"base": {}, "1 normal": dict(normals_per_contact=1), "4 normals": dict(normals_per_contact=4),
+         "12 normals": dict(normals_per_contact=12), "40 normals": dict(normals_per_contact=40),
+         "1 deg": dict(noise=1.0), "6 deg": dict(noise=6.0), "no drops": dict(drop=0.0),
+         "20 % dropped": dict(drop=0.2), "no bias": dict(bias=0.0), "10 % bias": dict(bias=0.1),
+         "no slip": dict(slip=0.0), "3 deg slip": dict(slip=3.0)}
+PROBES = {"as generated": (True, False), "edge landings removed": (False, False),
+          "true rotation as odometry": (True, True), "both": (False, True)}
+#: the development seeds' cell numbers, as in the sweep's order of cells
+_CELL_ORDER = ["1 normal", "base", "4 normals", "12 normals", "40 normals", "1 deg", "6 deg", "no drops",
+               "20 % dropped", "no bias", "10 % bias", "no slip", "3 deg slip"]
+
+
+def _one(job):
+    import warnings
+
+    warnings.simplefilter("ignore")
+    from touchloc.dnf import OrientationTracker, RotationDataset, generate_rotation_dataset
+    from touchloc.dnf.compare import run_estimator
+
+    cell_name, obj, s, edges, true_odo = job
+    cell = dict(_BASE, **CELLS[cell_name])
+    n_sides = dict(_SWEEP_OBJECTS)[obj]
+    rng = np.random.default_rng([11, _CELL_ORDER.index(cell_name), [o for o, _ in _SWEEP_OBJECTS].index(obj), s])
+    ds = generate_rotation_dataset(n_sides, revolutions=4.0, rng=rng, edge_normals=edges, **_cell_kwargs(cell))
+    params = {}
+    if true_odo:
+        ds = RotationDataset(ds.time, ds.true_orientation, ds.normal_angles, ds.sample_index,
+                             true_orientation=ds.true_orientation, n_surfaces=ds.n_surfaces, name=ds.name)
+        params["rate_prior_mean"] = 0.0
+    run = run_estimator("dnf", lambda: OrientationTracker(**params), ds)
+    return job, run.counts[len(run.counts) // 2:]
+
+
+def _sets(spec: str) -> list[int]:
+    out = []
+    for part in spec.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cells", nargs="+", default=["1 normal", "base", "6 deg", "3 deg slip"],
+                    choices=list(CELLS))
+    ap.add_argument("--sets", default="0-7", help="development data sets, e.g. 0-7 or 0,2,5")
+    ap.add_argument("--probes", nargs="+", default=list(PROBES), choices=list(PROBES))
+    ap.add_argument("--counts", action="store_true", help="count distributions of the (cell, object) below 90 %%")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    a = ap.parse_args(argv)
+    sets = _sets(a.sets)
+    objects = [o for o, _ in _SWEEP_OBJECTS]
+    jobs = [(c, o, s, *PROBES[p]) for p in a.probes for c in a.cells for o in objects for s in sets]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.workers) as ex:
+        results = dict(ex.map(_one, jobs, chunksize=4))
+    truth = dict(_SWEEP_OBJECTS)
+    print(f"Development seeds [11, cell, object, set], sets {a.sets}; right count in the second half, "
+          f"{' / '.join(objects)} ({time.perf_counter() - t0:.0f} s, {a.workers} workers)\n")
+    print("| data | " + " | ".join(a.cells) + " |")
+    print("|---|" + "---|" * len(a.cells))
+    for p in a.probes:
+        edges, true_odo = PROBES[p]
+        row = []
+        for c in a.cells:
+            right = [np.mean([np.mean(results[(c, o, s, edges, true_odo)] == truth[o]) for s in sets]) for o in objects]
+            row.append(" / ".join(f"{100 * r:.0f}" for r in right))
+        print(f"| {p} | " + " | ".join(row) + " |")
+    if a.counts:
+        for p in a.probes:
+            edges, true_odo = PROBES[p]
+            print(f"\n{p}: (cell, object) below 90 %: share of the second half at each count; right count per data set")
+            for c in a.cells:
+                for o in objects:
+                    runs = [results[(c, o, s, edges, true_odo)] for s in sets]
+                    allc = np.concatenate(runs)
+                    if np.mean(allc == truth[o]) >= 0.9:
+                        continue
+                    vals, n = np.unique(allc, return_counts=True)
+                    share = ", ".join(f"{v}: {100 * k / allc.size:.0f} %" for v, k in zip(vals, n))
+                    per = " ".join(f"{np.mean(r == truth[o]):.2f}" for r in runs)
+                    print(f"- {c}, {o}: {share}; {per}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
