@@ -40,7 +40,7 @@ def _timing(quick: bool) -> str:
     from touchloc.dnf.particle import ParticleOrientationEstimator
 
     ds = generate_rotation_dataset(6, revolutions=2 if quick else 4, rng=123)
-    repeats = 1 if quick else 3
+    repeats = 1 if quick else 5
     rows = []
     makers = [
         ("DNF tracker, full (2-D comparison field: active-block lateral)", lambda: OrientationTracker()),
@@ -50,13 +50,17 @@ def _timing(quick: bool) -> str:
         ("histogram", lambda: HistogramEstimator()),
         ("particle filter, 400 particles x 120 bins", lambda: ParticleOrientationEstimator(400, rng=0)),
     ]
-    times = {}
-    for name, make in makers:
-        t = _step_times(make, ds, repeats)
-        times[name] = t
+    # interleaved: each round runs every estimator once, in an order that turns by one each
+    # round, so that the ratios to the baseline see the same load on a shared machine
+    times = {name: [] for name, _ in makers}
+    for r in range(repeats):
+        for name, make in makers[r % len(makers):] + makers[:r % len(makers)]:
+            times[name].append(_step_times(make, ds, 1))
+    times = {name: np.concatenate(t) for name, t in times.items()}
     base = np.median(times[makers[1][0]])
     lines = [f"Per step, over {len(ds)} samples x {repeats} run(s) of a simulated 6-gon data set "
-             "(360 sites; `tracker.step(normal_angles, odometry)` including input validation):", "",
+             "(360 sites; `tracker.step(normal_angles, odometry)` including input validation); the runs "
+             "of the first five rows interleaved, one of each per round:", "",
              "| estimator | median | 95th percentile | mean | speed-up vs FFT baseline |", "|---|---|---|---|---|"]
     for name, t in times.items():
         lines.append(f"| {name} | {np.median(t) * 1e3:.3f} ms | {np.percentile(t, 95) * 1e3:.3f} ms | "
