@@ -130,6 +130,19 @@ def _cell_kwargs(cell):
 SWEEP_SETS, HELD_OUT_SETS = 6, 4
 
 
+def sweep_cells() -> list[dict]:
+    """The sweep's cells in its order (the base cell once): one knob moved at a time."""
+    cells, seen = [], set()
+    for _, key, values in _AXES:
+        for v in values:
+            c = dict(_BASE, **{key: v})
+            k = tuple(sorted(c.items(), key=lambda kv: kv[0]))
+            if k not in seen:
+                seen.add(k)
+                cells.append(c)
+    return cells
+
+
 def _cell_label(cell):
     b = "4-8 %" if cell["bias"] is None else f"{cell['bias']:.0%}"
     return (f"{cell['normals_per_contact']} / {cell['noise']:g} / {cell['drop']:.0%} / {b} / "
@@ -140,14 +153,7 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
     from _common import run_trials
     from touchloc.experiments import DNFSweep
 
-    cells, seen = [], set()
-    for _, key, values in _AXES:
-        for v in values:
-            c = dict(_BASE, **{key: v})
-            k = tuple(sorted(c.items(), key=lambda kv: kv[0]))
-            if k not in seen:
-                seen.add(k)
-                cells.append(c)
+    cells = sweep_cells()
     n_sets = n_sets or (1 if quick else SWEEP_SETS)
     revolutions = 3.0 if quick else 4.0
     # one trial per (cell, object, data set, estimator), all on the process pool

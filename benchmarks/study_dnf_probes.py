@@ -19,7 +19,7 @@ in mapping. The table gives the right count in the second half for the 4-, 5-, 6
 count of each data set. The figures are in docs/dnf.md ("Fourth round").
 
     cd benchmarks
-    ../.venv/bin/python study_dnf_probes.py --cells "1 normal" base "6 deg" "3 deg slip" \
+    ../.venv/bin/python study_dnf_probes.py --cells normals_per_contact=1 base noise=6 slip=3 \
         --sets 0-7 --counts
 """
 
@@ -36,19 +36,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_dnf import _BASE, _SWEEP_OBJECTS, _cell_kwargs  # noqa: E402
+from bench_dnf import _BASE, _SWEEP_OBJECTS, _cell_kwargs, sweep_cells  # noqa: E402
 
-#: the cells by name (one knob moved from the sweep's base cell)
-CELLS = {"base": {}, "1 normal": dict(normals_per_contact=1), "4 normals": dict(normals_per_contact=4),
-         "12 normals": dict(normals_per_contact=12), "40 normals": dict(normals_per_contact=40),
-         "1 deg": dict(noise=1.0), "6 deg": dict(noise=6.0), "no drops": dict(drop=0.0),
-         "20 % dropped": dict(drop=0.2), "no bias": dict(bias=0.0), "10 % bias": dict(bias=0.1),
-         "no slip": dict(slip=0.0), "3 deg slip": dict(slip=3.0)}
+def _cell_name(cell) -> str:
+    """'base', or the knob the cell moves from the base cell and its value (``noise=6``)."""
+    moved = [(k, v) for k, v in cell.items() if v != _BASE[k]]
+    return "base" if not moved else ", ".join(f"{k}={v:g}" for k, v in moved)
+
+
+#: the sweep's cells by name, with their number in the sweep's order (the seeds use it)
+CELLS = {_cell_name(c): (i, c) for i, c in enumerate(sweep_cells())}
 PROBES = {"as generated": (True, False), "edge landings removed": (False, False),
           "true rotation as odometry": (True, True), "both": (False, True)}
-#: the development seeds' cell numbers, as in the sweep's order of cells
-_CELL_ORDER = ["1 normal", "base", "4 normals", "12 normals", "40 normals", "1 deg", "6 deg", "no drops",
-               "20 % dropped", "no bias", "10 % bias", "no slip", "3 deg slip"]
 
 
 def _one(job):
@@ -59,9 +58,9 @@ def _one(job):
     from touchloc.dnf.compare import run_estimator
 
     cell_name, obj, s, edges, true_odo = job
-    cell = dict(_BASE, **CELLS[cell_name])
+    ci, cell = CELLS[cell_name]
     n_sides = dict(_SWEEP_OBJECTS)[obj]
-    rng = np.random.default_rng([11, _CELL_ORDER.index(cell_name), [o for o, _ in _SWEEP_OBJECTS].index(obj), s])
+    rng = np.random.default_rng([11, ci, [o for o, _ in _SWEEP_OBJECTS].index(obj), s])
     ds = generate_rotation_dataset(n_sides, revolutions=4.0, rng=rng, edge_normals=edges, **_cell_kwargs(cell))
     params = {}
     if true_odo:
@@ -82,8 +81,8 @@ def _sets(spec: str) -> list[int]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cells", nargs="+", default=["1 normal", "base", "6 deg", "3 deg slip"],
-                    choices=list(CELLS))
+    ap.add_argument("--cells", nargs="+", default=["normals_per_contact=1", "base", "noise=6", "slip=3"],
+                    choices=list(CELLS), help="cells by the knob they move (default: the four that the docs show)")
     ap.add_argument("--sets", default="0-7", help="development data sets, e.g. 0-7 or 0,2,5")
     ap.add_argument("--probes", nargs="+", default=list(PROBES), choices=list(PROBES))
     ap.add_argument("--counts", action="store_true", help="count distributions of the (cell, object) below 90 %%")
