@@ -1,7 +1,7 @@
 """This checkout's localisation time against another commit's, trial by trial.
 
     python benchmarks/ab_speed.py REV [--trials N] [--contacts 10,30] [--meshes mug,milk,...]
-                                      [--identify N]
+                                      [--identify N] [--options JSON]
 
 The speed benchmark's trials (``bench_speed.py``: the README quick-start path, 2 mm / 5 deg
 contacts, pose uniform in a 400 mm cube) on two worker processes, one importing touchloc
@@ -10,12 +10,15 @@ alternating order, so that both see the same load on a shared machine; the ratio
 is the median over trials of the per-trial ratio (REV / this checkout). Prints a Markdown
 table; nothing is written to docs/. ``--identify N`` adds N identifications among the six
 bundled objects from 10 contacts (the speed benchmark's, true object in turn), alternating in
-the same way.
+the same way. ``--options '{"final_moves": 0}'`` passes keyword arguments to this checkout's
+``ScalingSeries`` only (REV's keeps its defaults), e.g. to compare like with like where REV
+lacks a stage.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -38,8 +41,12 @@ def main(argv=None) -> int:
                     help=f"bundled meshes, or {BALL!r} for the speed benchmark's near-spherical one")
     ap.add_argument("--threads", type=int, default=0, help="numba threads per worker (0: numba's default)")
     ap.add_argument("--identify", type=int, default=0, help="identification trials to add (0: none)")
+    ap.add_argument("--options", default="{}", help="JSON keyword arguments for this checkout's ScalingSeries only")
     a = ap.parse_args(argv)
     ks = [int(k) for k in a.contacts.split(",")]
+    options = json.loads(a.options)
+    if not isinstance(options, dict):
+        ap.error("--options must be a JSON object")
     meshes = a.meshes.split(",")
     threads = a.threads or None
     rows = []
@@ -59,8 +66,8 @@ def main(argv=None) -> int:
                         seed = 5000 + 100 * k + s
                         first, second = (cur, base) if s % 2 == 0 else (base, cur)
                         name = ball if mesh == BALL else mesh
-                        r1 = first.ask(mesh=name, k=k, seed=seed)
-                        r2 = second.ask(mesh=name, k=k, seed=seed)
+                        r1 = first.ask(mesh=name, k=k, seed=seed, **({"options": options} if first is cur else {}))
+                        r2 = second.ask(mesh=name, k=k, seed=seed, **({"options": options} if second is cur else {}))
                         rc, rb = (r1, r2) if first is cur else (r2, r1)
                         tc.append(rc["time"])
                         tb.append(rb["time"])
