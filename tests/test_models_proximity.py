@@ -343,8 +343,9 @@ def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exa
         off, ids = K.unpack_near_lists(grid.near_entries, grid.near_ids, len(grid.tri))
         assert np.all(np.diff(off) > 0) and 0 <= ids.min() and ids.max() < len(grid.tri)
         # the lists passed their own check
-        answered, near_off, _, general_off, kept = grid.near_check
+        answered, near_off, _, general_off, kept, fast_off = grid.near_check
         assert kept == 1 and answered > 0.95 and near_off <= max(K.NEAR_CHECK_SHARE, general_off)
+        assert fast_off <= K.NEAR_CHECK_SHARE and grid.fast_ok
 
         P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=6000, seed=7)
         found, near = K.near_list_costs(grid, P, N)
@@ -356,6 +357,35 @@ def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exa
         # and the fast method gives these answers
         fast = model.query_costs(P, N, method="fast")
         assert np.allclose(fast[found], near[found] / model.sigma_pos**2, rtol=1e-12, atol=0)
+
+
+def test_auto_leaves_a_fast_grid_that_fails_its_check_for_the_exact_method(objects):
+    """At 3 cm of position noise the mug's fast grid answers a tenth of the queries near the
+    truth more than 0.1 d_M^2 above the exact cost (by up to about 14): its check says so,
+    and ``auto`` then scores exactly, in the model and in Scaling Series alike. At 2 mm the
+    grid passes and ``auto`` uses it."""
+    from touchloc.belief import PoseRegion, ScalingSeries
+    from touchloc.models import _kernels as K
+
+    obj = objects["mug"]
+    coarse = ProximityModel(obj, 0.03, np.deg2rad(5))
+    w = coarse._weight(True)
+    grid = coarse._grid(w)
+    assert not grid.fast_ok and grid.near_check[5] > 0.05
+    P, N = K.near_check_queries(obj.bvh(w), w, coarse.sigma_pos**2, n=4000, seed=5)
+    exact = coarse.query_costs(P, N, method="exact")
+    fast = coarse.query_costs(P, N, method="fast")
+    assert np.mean(fast - exact > 0.1) > 0.05          # the grid itself is still off ...
+    assert np.array_equal(coarse.query_costs(P, N), exact)   # ... and auto does not use it
+    region = PoseRegion.box((0, 0, 0), 0.05, "full")
+    poses = region.sample(200, rng=1)
+    contacts = Contacts(P[:20], N[:20])
+    assert np.array_equal(coarse.contact_costs(poses, contacts), coarse.contact_costs(poses, contacts, method="exact"))
+    assert ScalingSeries(coarse)._method(coarse, contacts) == "exact"
+
+    fine = ProximityModel(obj, 0.002, np.deg2rad(5))
+    assert fine._grid(fine._weight(True)).fast_ok
+    assert ScalingSeries(fine)._method(fine, contacts) == "fast"
 
 
 def test_near_lists_reach_every_pair_that_costs_less_than_their_threshold(objects):
@@ -497,8 +527,10 @@ def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
     model = ProximityModel(obj, 0.002, np.deg2rad(5))
     w = model._weight(True)
     grid = model._grid(w)
-    answered, near_off, _, general_off, kept = grid.near_check
+    answered, near_off, _, general_off, kept, fast_off = grid.near_check
     assert kept == 0 and near_off > max(K.NEAR_CHECK_SHARE, general_off)
+    # the fast method answers from the general lists, and those pass the check
+    assert fast_off == general_off and grid.fast_ok
     assert len(grid.near_cells) == 0 and len(grid.near_entries) == 0 and len(grid.near_ids) == 0
     P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=4000, seed=7)
     found, _ = K.near_list_costs(grid, P, N)
@@ -519,7 +551,9 @@ def test_near_lists_are_not_built_where_faces_crowd_a_samples_reach():
     model = ProximityModel(obj, 0.005, 0.1, grid_cell=0.01)
     w = model._weight(True)
     grid = model._grid(w)
-    assert len(grid.near_cells) == 0 and (grid.near_check == 0).all()
+    # no lists, so nothing of theirs is checked; the general lists still are
+    assert len(grid.near_cells) == 0 and (grid.near_check[[0, 1, 2, 4]] == 0).all()
+    assert grid.near_check[3] == grid.near_check[5] and grid.fast_ok
     lo, hi = obj.bounds
     shape = np.ceil((hi - lo + 2 * model.grid_margin) / model.grid_cell).astype(np.int64)
     assert K.build_near_lists(obj.bvh(w), lo - model.grid_margin, model.grid_cell, shape, w, 0.005**2) is None

@@ -12,7 +12,7 @@ from .._util import as_rng, blas_threads, progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_count, as_name, as_positive_float,
                          as_probability)
 from ..errors import ValidationError
-from ..models.proximity import AUTO_FAST_PAIRS, ProximityModel
+from ..models.proximity import ProximityModel
 from ..models.symmetry import Symmetry, _qrot
 from ._common import (ball_volume, check_contacts, check_dynamics, check_model, check_region, finite_loglik,
                       flag_degenerate, measurement, split_measurements)
@@ -615,7 +615,7 @@ class ScalingSeries:
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
         if prune and self.bound_scales is not None and delta >= self.bound_scales * model._bound_slack(contacts):
             return finite_loglik(-0.5 * model._lower_costs(X, contacts).sum(axis=1) / tau)
-        method = self._method(model, K)
+        method = self._method(model, contacts)
         costs = model._budget_costs
         if not prune or self.prune != "threshold" or N < 64:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
@@ -631,17 +631,16 @@ class ScalingSeries:
         cost, _ = costs(X, contacts, method, budget=np.full(N, limit), lower=lower)
         return finite_loglik(-0.5 * cost.sum(axis=1) / tau)
 
-    def _method(self, model, K: int) -> str:
+    def _method(self, model, contacts) -> str:
         """The likelihood method of every call of a run: ``auto`` resolved once, as one
         call over the largest batch the run may score would choose it (a scale of
-        ``max_particles`` or the first cover, times K contacts). The first scale builds the
-        model's grid, so the run's small batches (the last scales of a narrow belief, a
+        ``max_particles`` or the first cover, times the contacts). The first scale builds
+        the model's grid, so the run's small batches (the last scales of a narrow belief, a
         symmetric object's few representatives) use it too; on the tree they cost 5-20
-        times as much per pair (docs/benchmarks.md, "Localisation speed")."""
-        method = model.method
-        if method == "auto":
-            method = "fast" if max(self.n_initial, self.max_particles) * K >= AUTO_FAST_PAIRS else "exact"
-        return method
+        times as much per pair (docs/benchmarks.md, "Localisation speed"). A grid that
+        failed its check (a large sigma_pos) leaves ``exact``."""
+        return model._resolve(model.method, max(self.n_initial, self.max_particles) * len(contacts),
+                              model._weight(contacts.normals is not None and model.sigma_nor is not None))
 
     def _prune(self, poses, log_w):
         """Drop low-probability regions: "resample" keeps the distinct particles of a
@@ -669,7 +668,7 @@ class ScalingSeries:
         new_above = None
         if _plain_proximity(model):
             # the moves' proposals are this estimator's own rigid poses: no re-validation
-            method = self._method(model, len(contacts))
+            method = self._method(model, contacts)
 
             def new(Q):
                 return finite_loglik(-0.5 * model._contact_costs(Q, contacts, method).sum(axis=1))

@@ -1107,9 +1107,17 @@ class CandidateGrid:
     planes: np.ndarray
     # their check against the exact method (build_candidate_grid): share of the queries
     # answered, share off by more than NEAR_CHECK_ERROR, 99th percentile of the error, the
-    # share off for the general lists, and whether the near lists were kept (1) or dropped;
-    # all zero where none were built (position only, or faces crowded in a sample's reach)
+    # share off for the general lists, whether the near lists were kept (1) or dropped (the
+    # first five zero where none were built: faces crowded in a sample's reach), and the
+    # share off for the fast method as it answers (near lists where kept, general lists
+    # elsewhere); all zero for position-only grids, which are exact
     near_check: np.ndarray
+
+    @property
+    def fast_ok(self) -> bool:
+        """Whether the fast method passed its check: at most NEAR_CHECK_SHARE of the check's
+        queries off by more than NEAR_CHECK_ERROR (d_M^2). ``auto`` uses it only then."""
+        return bool(self.near_check[5] <= NEAR_CHECK_SHARE)
 
     @property
     def near(self) -> tuple:
@@ -1388,27 +1396,35 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
     grid = CandidateGrid(lo=np.array(los), h=np.array(hs), shape=np.array(shapes, np.int64), base=base,
                          offsets=offsets, ids=np.concatenate(ids_all).astype(np.int64), tri=tree.tri, nrm=tree.nrm,
                          w=float(w), adj_off=adj_off, adj=adj, longest=int(counts.max()) if len(counts) else 0,
-                         **no_near_lists(), near_check=np.zeros(5))
-    near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2), adjacency=(adj_off, adj)) \
-        if w > 0 and sigma2 is not None else None
+                         **no_near_lists(), near_check=np.zeros(6))
+    if w == 0 or sigma2 is None:
+        return grid  # position only: exact (or the tree's answer) wherever it lists faces
+    near = build_near_lists(tree, los[0], hs[0], shapes[0], w, float(sigma2), adjacency=(adj_off, adj))
+    # the check against the exact method, on queries like those of a pose near the truth
+    P, N = near_check_queries(tree, w, float(sigma2))
+    exact = np.empty(len(P))
+    _bvh_query_costs(*args, P, N, float(w), exact)
+    _, general = query_grid(grid, tree, P, N)
+    general_off = float(np.mean((general - exact) / sigma2 > NEAR_CHECK_ERROR))
+    check = np.array([0.0, 0.0, 0.0, general_off, 0.0, general_off])
     if near is not None:
-        grid = dataclasses.replace(grid, **near)
-        # their own check against the exact method, beside the general lists': where they are
-        # off more often than the general lists (faces small against the cells, whose winners
-        # change between the samples) and than NEAR_CHECK_SHARE, they are dropped
-        P, N = near_check_queries(tree, w, float(sigma2))
-        exact = np.empty(len(P))
-        _bvh_query_costs(*args, P, N, float(w), exact)
-        found, cost = near_list_costs(grid, P, N)
+        # the near lists beside the general ones: where they are off more often than the
+        # general lists (faces small against the cells, whose winners change between the
+        # samples) and than NEAR_CHECK_SHARE, they are dropped
+        with_near = dataclasses.replace(grid, **near)
+        found, cost = near_list_costs(with_near, P, N)
         err = (cost[found] - exact[found]) / sigma2
-        _, general = query_grid(dataclasses.replace(grid, **no_near_lists()), tree, P, N)
         near_off = float(np.mean(err > NEAR_CHECK_ERROR)) if found.any() else 0.0
-        general_off = float(np.mean((general - exact) / sigma2 > NEAR_CHECK_ERROR))
         keep = near_off <= max(NEAR_CHECK_SHARE, general_off)
+        if keep:
+            grid = with_near
+            _, fast = query_grid(grid, tree, P, N)
+            fast_off = float(np.mean((fast - exact) / sigma2 > NEAR_CHECK_ERROR))
+        else:
+            fast_off = general_off
         check = np.array([found.mean(), near_off, np.percentile(err, 99) if found.any() else 0.0, general_off,
-                          float(keep)])
-        grid = dataclasses.replace(grid, near_check=check, **({} if keep else no_near_lists()))
-    return grid
+                          float(keep), fast_off])
+    return dataclasses.replace(grid, near_check=check)
 
 
 def tree_adjacency(tree: BVH):
