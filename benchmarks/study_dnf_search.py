@@ -70,15 +70,27 @@ FAILING = ["6-gon", "8-gon", "round"]
 CELLS = sweep_cells()
 
 
+def _default(name: str) -> float:
+    """The default of a parameter of SPACE (``"map.h"``: the map field's ``h``)."""
+    from touchloc.dnf import TrackerParams
+
+    field, _, sub = name.partition(".")
+    d = TrackerParams()
+    return getattr(getattr(d, field), sub) if sub else getattr(d, field)
+
+
+def _unit(how: str, lo: float, hi: float) -> float:
+    """A parameter's unit move: the top of its range (log of the factor, or the amount
+    added), whichever end is farther."""
+    return max(abs(np.log(lo)), abs(np.log(hi))) if how == "x" else max(abs(lo), abs(hi))
+
+
 def draw(rng, scale: float = 1.0) -> dict:
     """One random parameter set: {name: value} over SPACE, its ranges shrunk by ``scale``
     (the log of a factor's range, or an added range, times ``scale``)."""
-    from touchloc.dnf import TrackerParams
-
-    d = TrackerParams()
     out = {}
     for name, how, lo, hi in SPACE:
-        base = getattr(getattr(d, name.split(".")[0]), name.split(".")[1]) if "." in name else getattr(d, name)
+        base = _default(name)
         if how == "x":
             out[name] = float(base * np.exp(scale * rng.uniform(np.log(lo), np.log(hi))))
         else:
@@ -89,18 +101,13 @@ def draw(rng, scale: float = 1.0) -> dict:
 def moved(moves: dict, scale: float) -> dict:
     """The parameter set that moves each named parameter by ``moves[name]`` units, a unit
     being the top of its range in SPACE times ``scale`` (as in :func:`sensitivity`)."""
-    from touchloc.dnf import TrackerParams
-
-    d = TrackerParams()
     out = {}
     for name, how, lo, hi in SPACE:
         if name not in moves:
             continue
-        base = getattr(getattr(d, name.split(".")[0]), name.split(".")[1]) if "." in name else getattr(d, name)
-        if how == "x":
-            out[name] = float(base * np.exp(moves[name] * scale * max(abs(np.log(lo)), abs(np.log(hi)))))
-        else:
-            out[name] = float(base + moves[name] * scale * max(abs(lo), abs(hi)))
+        base = _default(name)
+        step = moves[name] * scale * _unit(how, lo, hi)
+        out[name] = float(base * np.exp(step) if how == "x" else base + step)
     return out
 
 
@@ -163,19 +170,13 @@ def sensitivity(stage1: list, scale: float) -> list[tuple]:
     as a fraction of its range in SPACE (-1 .. 1 around the default, times ``scale``): the
     change of the score from the default to the top of the parameter's range. Returns
     ``(name, slope, standard error)``, steepest first."""
-    from touchloc.dnf import TrackerParams
-
-    d = TrackerParams()
     rows, y = [], []
     for r in stage1[1:]:
         u = []
         for name, how, lo, hi in SPACE:
-            base = getattr(getattr(d, name.split(".")[0]), name.split(".")[1]) if "." in name else getattr(d, name)
-            v = r["values"][name]
-            if how == "x":
-                u.append(np.log(v / base) / (scale * max(abs(np.log(lo)), abs(np.log(hi)))))
-            else:
-                u.append((v - base) / (scale * max(abs(lo), abs(hi))))
+            base, v = _default(name), r["values"][name]
+            step = np.log(v / base) if how == "x" else v - base
+            u.append(step / (scale * _unit(how, lo, hi)))
         rows.append([1.0] + u)
         y.append(r["score"])
     X, y = np.array(rows), np.array(y)
