@@ -345,7 +345,7 @@ def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exa
         # the lists passed their own check
         answered, near_off, _, general_off, kept, fast_off = grid.near_check
         assert kept == 1 and answered > 0.95 and near_off <= max(K.NEAR_CHECK_SHARE, general_off)
-        assert fast_off <= K.NEAR_CHECK_SHARE and grid.fast_ok
+        assert fast_off <= K.FAST_CHECK_SHARE and grid.fast_ok
 
         P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=6000, seed=7)
         found, near = K.near_list_costs(grid, P, N)
@@ -360,8 +360,8 @@ def test_near_lists_are_indexed_consistently_and_answer_close_queries_as_the_exa
 
 
 def test_auto_leaves_a_fast_grid_that_fails_its_check_for_the_exact_method(objects):
-    """At 3 cm of position noise the mug's fast grid answers a tenth of the queries near the
-    truth more than 0.1 d_M^2 above the exact cost (by up to about 14): its check says so,
+    """At 3 cm of position noise the mug's fast grid answers 7 % of the queries near the
+    truth more than 1 d_M^2 above the exact cost (by up to about 14): its check says so,
     and ``auto`` then scores exactly, in the model and in Scaling Series alike. At 2 mm the
     grid passes and ``auto`` uses it."""
     from touchloc.belief import PoseRegion, ScalingSeries
@@ -375,7 +375,7 @@ def test_auto_leaves_a_fast_grid_that_fails_its_check_for_the_exact_method(objec
     P, N = K.near_check_queries(obj.bvh(w), w, coarse.sigma_pos**2, n=4000, seed=5)
     exact = coarse.query_costs(P, N, method="exact")
     fast = coarse.query_costs(P, N, method="fast")
-    assert np.mean(fast - exact > 0.1) > 0.05          # the grid itself is still off ...
+    assert np.mean(fast - exact > 1.0) > 0.03          # the grid itself is still off ...
     assert np.array_equal(coarse.query_costs(P, N), exact)   # ... and auto does not use it
     region = PoseRegion.box((0, 0, 0), 0.05, "full")
     poses = region.sample(200, rng=1)
@@ -530,7 +530,7 @@ def test_near_lists_are_dropped_where_their_check_finds_them_off(objects, rng):
     answered, near_off, _, general_off, kept, fast_off = grid.near_check
     assert kept == 0 and near_off > max(K.NEAR_CHECK_SHARE, general_off)
     # the fast method answers from the general lists, and those pass the check
-    assert fast_off == general_off and grid.fast_ok
+    assert fast_off <= general_off and grid.fast_ok
     assert len(grid.near_cells) == 0 and len(grid.near_entries) == 0 and len(grid.near_ids) == 0
     P, N = K.near_check_queries(obj.bvh(w), w, model.sigma_pos**2, n=4000, seed=7)
     found, _ = K.near_list_costs(grid, P, N)
@@ -553,7 +553,7 @@ def test_near_lists_are_not_built_where_faces_crowd_a_samples_reach():
     grid = model._grid(w)
     # no lists, so nothing of theirs is checked; the general lists still are
     assert len(grid.near_cells) == 0 and (grid.near_check[[0, 1, 2, 4]] == 0).all()
-    assert grid.near_check[3] == grid.near_check[5] and grid.fast_ok
+    assert grid.near_check[5] <= grid.near_check[3] and grid.fast_ok
     lo, hi = obj.bounds
     shape = np.ceil((hi - lo + 2 * model.grid_margin) / model.grid_cell).astype(np.int64)
     assert K.build_near_lists(obj.bvh(w), lo - model.grid_margin, model.grid_cell, shape, w, 0.005**2) is None

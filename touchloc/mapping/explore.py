@@ -302,6 +302,23 @@ class ExplorationRun:
 
 
 @blas_threads
+def _check_map_kwargs(map_kwargs: dict, given: bool) -> None:
+    """``explore``'s extra keywords are ShapeMap's, and only for a map it builds itself."""
+    import inspect
+
+    if not map_kwargs:
+        return
+    if given:
+        raise ValidationError(f"explore got {sorted(map_kwargs)} for a new ShapeMap, but a map was given "
+                              "(smap= or slam=): set them on that map instead")
+    known = set(inspect.signature(ShapeMap.__init__).parameters) - {"self", "bounds", "method"}
+    unknown = sorted(set(map_kwargs) - known)
+    if unknown:
+        hint = " (explore's progress bar is progress_bar=)" if "progress" in unknown else ""
+        raise ValidationError(f"explore got unknown keyword arguments {unknown}{hint}; besides its own, it "
+                              f"takes ShapeMap's: {sorted(known)}")
+
+
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
             smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
             fingers: int = 1, candidates=None,
@@ -353,7 +370,8 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     callback : callable, optional
         ``callback(run, step)`` after every touch (e.g. to evaluate the map).
     **map_kwargs
-        Passed to :class:`ShapeMap`.
+        Passed to :class:`ShapeMap` when ``explore`` builds the map (neither ``smap`` nor
+        ``slam`` given); any other keyword raises ``ValidationError``.
 
     Returns
     -------
@@ -367,6 +385,7 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     n_candidates = _as_count(n_candidates, "n_candidates", 10_000)
     callback = as_callable(callback, "callback", allow_none=True)
     progress_bar = None if progress_bar is None else as_bool(progress_bar, "progress_bar")
+    _check_map_kwargs(map_kwargs, given=smap is not None or slam is not None)
     rng = as_rng(rng)
     if slam is not None:
         from .slam import TactileSLAM, transform_results

@@ -1044,6 +1044,11 @@ def near_list_costs(grid: CandidateGrid, P, N):
 NEAR_CHECK_QUERIES = 20_000
 NEAR_CHECK_ERROR = 0.1
 NEAR_CHECK_SHARE = 0.01
+#: The fast method as a whole, on the same queries: where more than FAST_CHECK_SHARE of its
+#: answers exceed the exact cost by more than FAST_CHECK_ERROR (d_M^2: half a nat of
+#: log-likelihood), ``auto`` scores exactly (CandidateGrid.fast_ok)
+FAST_CHECK_ERROR = 1.0
+FAST_CHECK_SHARE = 0.01
 
 
 def near_check_queries(tree: BVH, w: float, sigma2: float, n: int = NEAR_CHECK_QUERIES, seed: int = 0):
@@ -1109,15 +1114,15 @@ class CandidateGrid:
     # answered, share off by more than NEAR_CHECK_ERROR, 99th percentile of the error, the
     # share off for the general lists, whether the near lists were kept (1) or dropped (the
     # first five zero where none were built: faces crowded in a sample's reach), and the
-    # share off for the fast method as it answers (near lists where kept, general lists
-    # elsewhere); all zero for position-only grids, which are exact
+    # share off by more than FAST_CHECK_ERROR for the fast method as it answers (near lists
+    # where kept, general lists elsewhere); all zero for position-only grids, which are exact
     near_check: np.ndarray
 
     @property
     def fast_ok(self) -> bool:
-        """Whether the fast method passed its check: at most NEAR_CHECK_SHARE of the check's
-        queries off by more than NEAR_CHECK_ERROR (d_M^2). ``auto`` uses it only then."""
-        return bool(self.near_check[5] <= NEAR_CHECK_SHARE)
+        """Whether the fast method passed its check: at most FAST_CHECK_SHARE of the check's
+        queries off by more than FAST_CHECK_ERROR (d_M^2). ``auto`` uses it only then."""
+        return bool(self.near_check[5] <= FAST_CHECK_SHARE)
 
     @property
     def near(self) -> tuple:
@@ -1406,7 +1411,8 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
     _bvh_query_costs(*args, P, N, float(w), exact)
     _, general = query_grid(grid, tree, P, N)
     general_off = float(np.mean((general - exact) / sigma2 > NEAR_CHECK_ERROR))
-    check = np.array([0.0, 0.0, 0.0, general_off, 0.0, general_off])
+    fast_off = float(np.mean((general - exact) / sigma2 > FAST_CHECK_ERROR))
+    check = np.array([0.0, 0.0, 0.0, general_off, 0.0, fast_off])
     if near is not None:
         # the near lists beside the general ones: where they are off more often than the
         # general lists (faces small against the cells, whose winners change between the
@@ -1419,9 +1425,7 @@ def build_candidate_grid(tree: BVH, levels, w: float, n_normals: int = 64,
         if keep:
             grid = with_near
             _, fast = query_grid(grid, tree, P, N)
-            fast_off = float(np.mean((fast - exact) / sigma2 > NEAR_CHECK_ERROR))
-        else:
-            fast_off = general_off
+            fast_off = float(np.mean((fast - exact) / sigma2 > FAST_CHECK_ERROR))
         check = np.array([found.mean(), near_off, np.percentile(err, 99) if found.any() else 0.0, general_off,
                           float(keep), fast_off])
     return dataclasses.replace(grid, near_check=check)

@@ -124,10 +124,11 @@ class ProximityModel(MeasurementModel):
     is never below the exact cost; position-only costs are exact (the lists then hold
     every face that can be closest anywhere in the cell), and joint costs err only when
     the winning face is missing from the list. docs/benchmarks.md reports the measured
-    error. The whole fast method is checked the same way when its grid is built: where
-    more than 1 % of those 20,000 queries are off by more than 0.1 d_M^2, ``auto`` uses
-    ``exact`` for the model (a large ``sigma_pos`` on a curved mesh: at 3 cm on the mug,
-    11 % were off, by up to 14 d_M^2). ``method="fast"`` still uses the grid.
+    error. The whole fast method is checked on the same queries when its grid is built:
+    where more than 1 % of them are off by more than 1 d_M^2 (half a nat of
+    log-likelihood), ``auto`` uses ``exact`` for the model (a large ``sigma_pos`` on a
+    curved mesh: at 3 cm on the mug 7 % were, by up to 14 d_M^2). ``method="fast"`` still
+    uses the grid.
     """
 
     def __init__(self, obj: MeshObject, sigma_pos: float, sigma_nor: float | None = None,
