@@ -640,7 +640,7 @@ class ScalingSeries:
         times as much per pair (docs/benchmarks.md, "Localisation speed"). A grid that
         failed its check (a large sigma_pos) leaves ``exact``."""
         return model._resolve(model.method, max(self.n_initial, self.max_particles) * len(contacts),
-                              model._weight(contacts.normals is not None and model.sigma_nor is not None))
+                              model._weight(model._uses_normals(contacts)))
 
     def _prune(self, poses, log_w):
         """Drop low-probability regions: "resample" keeps the distinct particles of a

@@ -168,6 +168,11 @@ class ProximityModel(MeasurementModel):
         return np.inf if self.outlier_distance is None else self.outlier_distance**2
 
     # -- internals -------------------------------------------------------------------
+    def _uses_normals(self, contacts) -> bool:
+        """Whether these contacts' normals enter the cost (they have normals and the model
+        a sigma_nor)."""
+        return contacts.normals is not None and self.sigma_nor is not None
+
     def _weight(self, use_normals: bool) -> float:
         """Normal weight in the position-scaled cost: sigma_pos^2 / sigma_nor^2."""
         if not use_normals or self.sigma_nor is None:
@@ -227,13 +232,13 @@ class ProximityModel(MeasurementModel):
     def _bound_slack(self, contacts) -> float:
         """How far (m, in the joint metric) the bound table's lower bound can dilate a
         contact's cost for these contacts (see :attr:`touchloc.models._bounds.CostBound.slack`)."""
-        use_n = contacts.normals is not None and self.sigma_nor is not None
+        use_n = self._uses_normals(contacts)
         return self._bound(self._weight(use_n)).slack
 
     def _lower_costs(self, poses, contacts):
         """(N, K) lower bounds of :meth:`contact_costs` (d_M^2, capped like it) of trusted
         poses, from the table (:mod:`touchloc.models._bounds`): a lookup per pair."""
-        use_n = contacts.normals is not None and self.sigma_nor is not None
+        use_n = self._uses_normals(contacts)
         w = self._weight(use_n)
         s2 = self.sigma_pos**2
         lower = _bounds.lower_costs(self._bound(w), poses, contacts.points, contacts.normals if use_n else None,
@@ -302,7 +307,7 @@ class ProximityModel(MeasurementModel):
         their bounds.
         """
         method = method or self.method
-        use_n = contacts.normals is not None and self.sigma_nor is not None
+        use_n = self._uses_normals(contacts)
         w = self._weight(use_n)
         method = self._resolve(method, len(poses) * len(contacts), w)
         if method not in ("exact", "fast"):
