@@ -173,3 +173,21 @@ def test_a_limited_generator_passes_values_returns_and_raises_like_the_plain_one
     with pytest.raises(ValueError, match="negative"):
         g.send(-1)
     assert _blas_threads() == [2]
+
+
+def test_explore_runs_blas_on_one_thread_between_the_maps_calls_too(two_threads, monkeypatch):
+    """explore's own work (the planner's scoring, the callback after each touch) runs under
+    the limit as well, not only the map's methods."""
+    import trimesh
+
+    from touchloc.mapping import explore
+    from touchloc.models import MeshObject
+    from touchloc.planners import SimulatedWorld
+
+    monkeypatch.delenv(BLAS_THREADS_ENV, raising=False)
+    sphere = MeshObject(trimesh.creation.icosphere(3, radius=0.03), name="sphere")
+    world = SimulatedWorld(sphere, np.eye(4), noise_pos=0.001, noise_nor=0.087, rng=0)
+    seen = []
+    explore(world, ((-0.06,) * 3, (0.06,) * 3), 3, rng=0, callback=lambda run, step: seen.append(_blas_threads()))
+    assert len(seen) == 3 and all(s == [1] for s in seen)
+    assert _blas_threads() == [2]

@@ -301,7 +301,6 @@ class ExplorationRun:
         return "\n".join(lines)
 
 
-@blas_threads
 def _check_map_kwargs(map_kwargs: dict, given: bool) -> None:
     """``explore``'s extra keywords are ShapeMap's, and only for a map it builds itself."""
     import inspect
@@ -319,6 +318,7 @@ def _check_map_kwargs(map_kwargs: dict, given: bool) -> None:
                               f"takes ShapeMap's: {sorted(known)}")
 
 
+@blas_threads
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
             smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
             fingers: int = 1, candidates=None,
