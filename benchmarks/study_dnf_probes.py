@@ -50,25 +50,40 @@ PROBES = {"as generated": (True, False), "edge landings removed": (False, False)
           "true rotation as odometry": (True, True), "both": (False, True)}
 
 
+def dev_dataset(ci: int, obj: str, s: int, edge_normals: bool = True):
+    """Development data set ``s`` of the sweep's cell number ``ci`` and object ``obj``
+    (seeds ``[11, cell, object, set]``, 4 turns)."""
+    from touchloc.dnf import generate_rotation_dataset
+
+    rng = np.random.default_rng([11, ci, [o for o, _ in _SWEEP_OBJECTS].index(obj), s])
+    return generate_rotation_dataset(dict(_SWEEP_OBJECTS)[obj], revolutions=4.0, rng=rng,
+                                     edge_normals=edge_normals, **_cell_kwargs(sweep_cells()[ci]))
+
+
+def second_half_counts(ds, **params) -> np.ndarray:
+    """The DNF tracker's side counts (``params`` overriding its defaults) in the second
+    half of a data set."""
+    from touchloc.dnf import OrientationTracker
+    from touchloc.dnf.compare import run_estimator
+
+    run = run_estimator("dnf", lambda: OrientationTracker(**params), ds)
+    return run.counts[len(run.counts) // 2:]
+
+
 def _one(job):
     import warnings
 
     warnings.simplefilter("ignore")
-    from touchloc.dnf import OrientationTracker, RotationDataset, generate_rotation_dataset
-    from touchloc.dnf.compare import run_estimator
+    from touchloc.dnf import RotationDataset
 
     cell_name, obj, s, edges, true_odo = job
-    ci, cell = CELLS[cell_name]
-    n_sides = dict(_SWEEP_OBJECTS)[obj]
-    rng = np.random.default_rng([11, ci, [o for o, _ in _SWEEP_OBJECTS].index(obj), s])
-    ds = generate_rotation_dataset(n_sides, revolutions=4.0, rng=rng, edge_normals=edges, **_cell_kwargs(cell))
+    ds = dev_dataset(CELLS[cell_name][0], obj, s, edge_normals=edges)
     params = {}
     if true_odo:
         ds = RotationDataset(ds.time, ds.true_orientation, ds.normal_angles, ds.sample_index,
                              true_orientation=ds.true_orientation, n_surfaces=ds.n_surfaces, name=ds.name)
         params["rate_prior_mean"] = 0.0
-    run = run_estimator("dnf", lambda: OrientationTracker(**params), ds)
-    return job, run.counts[len(run.counts) // 2:]
+    return job, second_half_counts(ds, **params)
 
 
 def _sets(spec: str) -> list[int]:

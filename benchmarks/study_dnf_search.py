@@ -41,7 +41,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_dnf import _SWEEP_OBJECTS, _cell_kwargs, sweep_cells  # noqa: E402
+from bench_dnf import _SWEEP_OBJECTS, sweep_cells  # noqa: E402
+from study_dnf_probes import _sets, dev_dataset, second_half_counts  # noqa: E402
 
 #: the parameters moved, how, and how far: "x" multiplies the default by a log-uniform
 #: factor in [lo, hi]; "+" adds a uniform amount in [lo, hi]. A dotted name is a field of a
@@ -133,17 +134,9 @@ def _one(job):
     import warnings
 
     warnings.simplefilter("ignore")
-    from touchloc.dnf import OrientationTracker, generate_rotation_dataset
-    from touchloc.dnf.compare import run_estimator
-
     values, ci, obj, s = job
-    n_sides = dict(_SWEEP_OBJECTS)[obj]
-    rng = np.random.default_rng([11, ci, OBJECTS.index(obj), s])
-    ds = generate_rotation_dataset(n_sides, revolutions=4.0, rng=rng, **_cell_kwargs(CELLS[ci]))
-    kw = tracker_kwargs(values)
-    run = run_estimator("dnf", lambda: OrientationTracker(**kw), ds)
-    second = run.counts[len(run.counts) // 2:]
-    return float(np.mean(second == n_sides))
+    ds = dev_dataset(ci, obj, s)
+    return float(np.mean(second_half_counts(ds, **tracker_kwargs(values)) == ds.n_surfaces))
 
 
 def evaluate(ex, values: dict, objects, sets) -> dict:
@@ -188,11 +181,6 @@ def sensitivity(stage1: list, scale: float) -> list[tuple]:
     se = np.sqrt(np.diag(s2 * np.linalg.pinv(X.T @ X)))
     out = [(name, float(c), float(e)) for (name, *_), c, e in zip(SPACE, coef[1:], se[1:])]
     return sorted(out, key=lambda t: -abs(t[1]))
-
-
-def _sets(spec: str) -> list[int]:
-    lo, _, hi = spec.partition("-")
-    return list(range(int(lo), int(hi or lo) + 1))
 
 
 def main(argv=None) -> int:
