@@ -94,7 +94,7 @@ def _accuracy(quick: bool, seed: int) -> str:
     n = 2 if quick else 5
     sets = standard_datasets(n_per_object=n, seed=seed)
     t0 = time.perf_counter()
-    res = compare(sets, default_estimators(rng=0), progress_bar=False)
+    res = compare(sets, default_estimators(rng=0), progress=False)
     dt = time.perf_counter() - t0
     return (f"{n} simulated data sets per object (`standard_datasets(seed={seed})`, about 4 turns and "
             f"410 samples each; {dt:.0f} s for all runs). \"Right count\" is the fraction of second-half "
@@ -230,7 +230,7 @@ def _families(quick: bool) -> str:
         sets = {o: [generate_rotation_dataset(n, rng=np.random.default_rng([5, n, i]), name=f"{o} #{i + 1}", **kw)
                     for i in range(1)] for o, n in objects}
         t0 = time.perf_counter()
-        res = compare(sets, estimators_with_map(rng=0), progress_bar=False)
+        res = compare(sets, estimators_with_map(rng=0), progress=False)
         dt = time.perf_counter() - t0
         mapped_s = np.mean([r.seconds_per_step * len(r.counts) for o in res for r in res[o][MAPPED]])
         out += [f"On {title}; one data set per object, 4 turns (seeds `[5, n, 0]`); {dt:.0f} s for all "
@@ -266,7 +266,7 @@ def _emulated(quick: bool) -> str:
     for label, width in (("default", 0.008), ("every blob", None)):
         sets = {o: [emulated_rotation(n, turns=4.0, rng=i, min_width=width, name=f"{o} #{i + 1}")
                     for i in range(n_sets)] for o, n in objects}
-        runs[label] = compare(sets, default_estimators(rng=0), progress_bar=False)
+        runs[label] = compare(sets, default_estimators(rng=0), progress=False)
     rec = time.perf_counter() - t0
     out = ["`touchloc.experiments.ngon.emulated_rotation(n, turns=4, rng=i)`: an n-gon prism "
            "(sides 18 mm from its axis) between the three distal pads of the emulated SDH-2, turned in "
@@ -294,7 +294,7 @@ def _emulated(quick: bool) -> str:
             sets = {o: [emulated_rotation(n, turns=4.0, rng=np.random.default_rng([7, n]), min_width=w, **kw)]
                     for o, n in objects}
             cells[w] = compare(sets, {k: v for k, v in default_estimators(rng=0).items() if k in (DNF, PARTICLE)},
-                               progress_bar=False)
+                               progress=False)
         acc = lambda res, o, est: float(np.nanmean([r.accuracy for r in res[o][est]]))  # noqa: E731
         dnf = [acc(cells[width], o, DNF) for o, _ in objects]
         pf = [acc(cells[width], o, PARTICLE) for o, _ in objects]

@@ -456,3 +456,42 @@ def test_diagnose_names_units_region_and_mesh(objects, mug_csv):
     b = ParticleBelief(np.eye(4)[None], info={"mean_cost_at_map": 16.0})
     text = "\n".join(cli.diagnose(obj, Contacts.from_csv(m), region, b, sigma_pos=0.002))
     assert "4 sigma" in text and "millimetres" not in text and "check: units" in text
+
+
+def test_every_progress_keyword_is_called_progress(capsys):
+    """Design convention 9: long work takes ``progress=``. The functions that called it
+    ``progress_bar=`` take ``progress=`` now; the old name still works with a
+    DeprecationWarning, and both at once is a ValidationError. ``progress=True`` shows a
+    bar, ``progress=False`` and ``progress_bar=False`` nothing."""
+    import inspect
+    import warnings
+
+    from touchloc import ValidationError
+    from touchloc.dnf import compare, generate_rotation_dataset
+    from touchloc.dnf.compare import default_estimators
+    from touchloc.mapping import explore
+    from touchloc.planners import active_localization
+    from touchloc.recognition import TactileScanner, evaluate_protocol, simulate_dataset
+
+    for fn in (explore, active_localization, evaluate_protocol, simulate_dataset, TactileScanner.scan_many,
+               compare):
+        params = inspect.signature(fn).parameters
+        assert "progress" in params and params["progress"].default is None, fn.__name__
+
+    sets = {"6-gon": [generate_rotation_dataset(6, revolutions=0.2, rng=0)]}
+    est = {k: v for k, v in default_estimators(rng=0).items() if k == "histogram"}
+    compare(sets, est, progress=False)
+    assert capsys.readouterr().err == ""
+    compare(sets, est, progress=True)
+    assert "estimators x data sets" in capsys.readouterr().err
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        compare(sets, est, progress_bar=False)
+    assert capsys.readouterr().err == ""
+    dep = [w for w in caught if issubclass(w.category, DeprecationWarning)]
+    assert len(dep) == 1 and "use progress=" in str(dep[0].message)
+    assert dep[0].filename == __file__    # points at the caller's line
+    with pytest.raises(ValidationError, match="progress= only"):
+        compare(sets, est, progress=False, progress_bar=False)
+    with pytest.raises(ValidationError, match="progress"):
+        compare(sets, est, progress="yes")

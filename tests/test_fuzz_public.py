@@ -115,7 +115,7 @@ def _world():
         "planner": RandomPlanner(), "n_sites": 36, "width": 0.1, "gain": 1.0, "estimate": np.zeros(5),
         "truth": np.zeros(5), "tolerances": (0.01, 0.1), "cost": None, "objects": {"box": obj},
         "field": np.zeros(36), "n_other": 4, "F": np.zeros((36, 36)), "x": np.zeros(36),
-        "params": None, "progress": False, "progress_bar": False, "datasets": {}, "results_": {}, "index": 0, "delta": 0.1,
+        "params": None, "progress": False, "progress_bar": None, "datasets": {}, "results_": {}, "index": 0, "delta": 0.1,
         "path": "fuzz-out.npz",
     }
     v["world"] = SimulatedWorld(obj, np.eye(4), rng=0)

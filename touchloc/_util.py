@@ -63,6 +63,24 @@ def progress(iterable: Iterable, *, total=None, desc=None, enabled=None, leave=F
     return tqdm(iterable, total=total, desc=desc, leave=leave)
 
 
+def progress_keyword(progress, progress_bar, where: str):
+    """The checked ``progress=`` flag of ``where``, which took it as ``progress_bar=`` before.
+
+    ``progress_bar=`` still works, with a ``DeprecationWarning``; giving both is a
+    ``ValidationError``. Returns None (the default: a bar when stderr is a terminal),
+    True or False.
+    """
+    if progress_bar is not None:
+        if progress is not None:
+            raise ValidationError(f"{where}: give progress= only (progress_bar= is its old name)")
+        import warnings
+
+        warnings.warn(f"{where}(progress_bar=...) is deprecated; use progress=", DeprecationWarning,
+                      stacklevel=external_stacklevel())
+        progress = progress_bar
+    return None if progress is None else as_bool(progress, "progress")
+
+
 def _log_progress(iterable, total, desc, interval):
     import time
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._util import progress
+from .._util import progress as show_progress
+from .._util import progress_keyword
 from .._validate import (as_bool, as_callable, as_count, as_float_array, as_instance, as_mapping, as_name,
                          as_sequence)
 from ..errors import ValidationError
@@ -163,7 +164,8 @@ def run_estimator(name: str, make, dataset, *, record: bool = False) -> Estimato
     return EstimatorRun(name, dataset.name, dataset.n_surfaces, counts, orient, err, spent / T, mems)
 
 
-def compare(datasets: dict, estimators: dict | None = None, *, record: bool = False, progress_bar=None) -> dict:
+def compare(datasets: dict, estimators: dict | None = None, *, record: bool = False, progress=None,
+            progress_bar=None) -> dict:
     """Run every estimator on every data set.
 
     Parameters
@@ -174,6 +176,9 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
         ``{name: factory}``; default ``default_estimators(rng=0)``.
     record : bool
         Keep every memory over time (for :func:`plot_memories`).
+    progress : bool, optional
+        A bar over the runs (default: when stderr is a terminal; otherwise a line to stderr every few
+        seconds). ``progress_bar=`` is its deprecated old name.
 
     Returns
     -------
@@ -191,12 +196,11 @@ def compare(datasets: dict, estimators: dict | None = None, *, record: bool = Fa
         for k, v in estimators.items():
             as_callable(v, f"estimators[{k!r}]")
     record = as_bool(record, "record")
-    if progress_bar is not None:
-        progress_bar = as_bool(progress_bar, "progress_bar")
+    progress = progress_keyword(progress, progress_bar, "compare")
     estimators = estimators or default_estimators(rng=0)
     jobs = [(obj, name, make, ds) for obj, dss in datasets.items() for ds in dss for name, make in estimators.items()]
     out = {obj: {name: [] for name in estimators} for obj in datasets}
-    for obj, name, make, ds in progress(jobs, desc="estimators x data sets", enabled=progress_bar):
+    for obj, name, make, ds in show_progress(jobs, desc="estimators x data sets", enabled=progress):
         out[obj][name].append(run_estimator(name, make, ds, record=record))
     return out
 

@@ -193,7 +193,7 @@ def _active(p, obj, data_rng, est_rng):
     opts = json.loads(p["options"])
     t0 = time.perf_counter()
     res = active_localization(world, sc.model, sc.region, planner(sc.model, **opts.get("planner", {})),
-                              sc.candidates, max_touches=int(p["contacts"]), rng=est_rng, progress_bar=False,
+                              sc.candidates, max_touches=int(p["contacts"]), rng=est_rng, progress=False,
                               **opts.get("loop", {}))
     dt = time.perf_counter() - t0
     T = res.steps[-1].map_pose

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtr
 
-from .._util import as_rng, blas_threads, progress
+from .._util import as_rng, blas_threads, progress_keyword
+from .._util import progress as show_progress
 from .._validate import as_bool, as_callable, as_nonnegative_float
 from ..errors import ValidationError
 from ..planners import GuardedTouch, HandTouch, TouchResult
@@ -313,8 +314,7 @@ def _check_map_kwargs(map_kwargs: dict, given: bool) -> None:
     known = set(inspect.signature(ShapeMap.__init__).parameters) - {"self", "bounds", "method"}
     unknown = sorted(set(map_kwargs) - known)
     if unknown:
-        hint = " (explore's progress bar is progress_bar=)" if "progress" in unknown else ""
-        raise ValidationError(f"explore got unknown keyword arguments {unknown}{hint}; besides its own, it "
+        raise ValidationError(f"explore got unknown keyword arguments {unknown}; besides its own, it "
                               f"takes ShapeMap's: {sorted(known)}")
 
 
@@ -322,7 +322,7 @@ def _check_map_kwargs(map_kwargs: dict, given: bool) -> None:
 def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", method: str = "gpis",
             smap: ShapeMap | None = None, slam=None, n_candidates: int = 60, probe_radius: float = 0.0,
             fingers: int = 1, candidates=None,
-            rng=None, callback=None, progress_bar=None, **map_kwargs) -> ExplorationRun:
+            rng=None, callback=None, progress=None, progress_bar=None, **map_kwargs) -> ExplorationRun:
     """Map an unknown object by touching it ``n_touches`` times.
 
     Parameters
@@ -369,6 +369,9 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     rng : None, int or Generator
     callback : callable, optional
         ``callback(run, step)`` after every touch (e.g. to evaluate the map).
+    progress : bool, optional
+        A bar over the touches (default: when stderr is a terminal; otherwise a line to
+        stderr every few seconds). ``progress_bar=`` is its deprecated old name.
     **map_kwargs
         Passed to :class:`ShapeMap` when ``explore`` builds the map (neither ``smap`` nor
         ``slam`` given); any other keyword raises ``ValidationError``.
@@ -384,7 +387,7 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
     n_touches = _as_count(n_touches, "n_touches")
     n_candidates = _as_count(n_candidates, "n_candidates", 10_000)
     callback = as_callable(callback, "callback", allow_none=True)
-    progress_bar = None if progress_bar is None else as_bool(progress_bar, "progress_bar")
+    progress = progress_keyword(progress, progress_bar, "explore")
     _check_map_kwargs(map_kwargs, given=smap is not None or slam is not None)
     rng = as_rng(rng)
     if slam is not None:
@@ -411,7 +414,7 @@ def explore(world, bounds, n_touches: int, *, planner: str = "uncertainty", meth
         raise ValidationError("the lattice planner makes its own touches: leave candidates out")
     lattice = lattice_pool(bounds, n_touches, probe_radius=probe_radius) if planner == "lattice" else None
     run = ExplorationRun(smap, [])
-    for i in progress(range(n_touches), total=n_touches, desc="touches", enabled=progress_bar):
+    for i in show_progress(range(n_touches), total=n_touches, desc="touches", enabled=progress):
         t0 = time.perf_counter()
         score = float("nan")
         pool = None if candidates is None else _pool(candidates, rng)

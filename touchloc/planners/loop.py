@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._util import as_rng, progress
+from .._util import as_rng, progress_keyword
+from .._util import progress as show_progress
 from .._validate import (MAX_PARTICLES, WHY_PARTICLES, as_bool, as_callable, as_count, as_instance,
                          as_nonnegative_float, as_pose, as_positive_float, as_probability, as_sequence)
 from ..belief import ParticleBelief, SMCFilter
@@ -117,7 +118,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
                         max_touches: int = 20, stop_error: float | None = None, stop_probability: float = 0.95,
                         stop_metric: str = "add_s",
                         confidence: float | None = None, min_touches: int = 1,
-                        updater=None, verify_stop: bool = True, rng=None, progress_bar=None,
+                        updater=None, verify_stop: bool = True, rng=None, progress=None, progress_bar=None,
                         keep_plans: bool = False, callback=None) -> ActiveResult:
     """Localise an object by touching it where the planner says, until the belief is confident.
 
@@ -168,6 +169,9 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     rng : None, int or Generator
     keep_plans : bool
         Keep every Plan (with its candidates' scores) in the steps.
+    progress : bool, optional
+        A bar over the touches (default: when stderr is a terminal; otherwise a line to stderr every few
+        seconds). ``progress_bar=`` is its deprecated old name.
     callback : callable, optional
         ``callback(step)`` for the prior (step 0) and after each touch.
 
@@ -189,8 +193,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     n_particles = as_count(n_particles, "n_particles", min=10, max=MAX_PARTICLES, why=WHY_PARTICLES)
     max_touches = as_count(max_touches, "max_touches", min=0, max=100_000, why="each touch is one plan and update")
     min_touches = as_count(min_touches, "min_touches", min=0)
-    if progress_bar is not None:
-        progress_bar = as_bool(progress_bar, "progress_bar")
+    progress = progress_keyword(progress, progress_bar, "active_localization")
     keep_plans = as_bool(keep_plans, "keep_plans")
     verify_stop = as_bool(verify_stop, "verify_stop")
     callback = as_callable(callback, "callback", allow_none=True)
@@ -239,7 +242,7 @@ def active_localization(world, model, region, planner, candidates, *, n_particle
     if callback is not None:
         callback(steps[0])
     confident = False
-    it = progress(range(1, int(max_touches) + 1), desc="touches", enabled=progress_bar)
+    it = show_progress(range(1, int(max_touches) + 1), desc="touches", enabled=progress)
     for i in it:
         b = current()
         cands = candidates(b, rng) if callable(candidates) else candidates

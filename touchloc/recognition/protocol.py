@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._util import as_rng, progress
-from .._validate import as_bool, as_callable, as_count, as_float_array
+from .._util import as_rng, progress_keyword
+from .._util import progress as show_progress
+from .._validate import as_callable, as_count, as_float_array
 from ..errors import ValidationError
 
 __all__ = ["ProtocolResult", "RejectionResult", "evaluate_protocol", "evaluate_rejection", "bundled_objects", "procedural_objects",
@@ -55,7 +56,7 @@ class ProtocolResult:
 
 
 def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int = 10, rng=None,
-                      progress_bar=None) -> ProtocolResult:
+                      progress=None, progress_bar=None) -> ProtocolResult:
     """Seed 002's protocol: per class, ``n_train`` sequences train and the rest test.
 
     Parameters
@@ -69,6 +70,9 @@ def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int
     n_splits : int
         Random partitions (seed 002: 10).
     rng : None, int or numpy.random.Generator
+    progress : bool, optional
+        A bar over the splits (default: when stderr is a terminal; otherwise a line to stderr every few
+        seconds). ``progress_bar=`` is its deprecated old name.
 
     Returns
     -------
@@ -78,8 +82,7 @@ def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int
     make_classifier = as_callable(make_classifier, "make_classifier")
     n_train = as_count(n_train, "n_train", max=100_000)
     n_splits = as_count(n_splits, "n_splits", max=10_000, why="each split trains a classifier")
-    if progress_bar is not None:
-        progress_bar = as_bool(progress_bar, "progress_bar")
+    progress = progress_keyword(progress, progress_bar, "evaluate_protocol")
     if len(y) != len(X):
         raise ValidationError(f"y must have one label per scan ({len(X)}), got {len(y)}")
     classes, yi = np.unique(y, return_inverse=True)
@@ -89,7 +92,7 @@ def evaluate_protocol(X, y, make_classifier, *, n_train: int = 16, n_splits: int
     rng = as_rng(rng)
     acc, tt, pt = [], [], []
     conf = np.zeros((len(classes), len(classes)), dtype=int)
-    for s in progress(range(int(n_splits)), desc="splits", enabled=progress_bar):
+    for s in show_progress(range(int(n_splits)), desc="splits", enabled=progress):
         train = np.zeros(len(y), dtype=bool)
         for c in range(len(classes)):
             idx = np.flatnonzero(yi == c)

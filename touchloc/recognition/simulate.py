@@ -44,8 +44,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .._util import as_rng, progress
-from .._validate import as_bool, as_count, as_float, as_instance, as_nonnegative_float, as_pose, as_positive_float
+from .._util import as_rng, progress_keyword
+from .._util import progress as show_progress
+from .._validate import as_count, as_float, as_instance, as_nonnegative_float, as_pose, as_positive_float
 from ..errors import ValidationError
 from ..models import MeshObject
 
@@ -275,13 +276,15 @@ class TactileScanner:
         poses[:, :3, 3] = c_all
         return Scan(frames=frames, pad_poses=poses, object_pose=object_pose, phase=ph_all, depth=depth)
 
-    def scan_many(self, obj, n_scans: int, *, rng=None, progress_bar=None) -> np.ndarray:
-        """(n_scans, n_frames, n_texels, n_texels) uint16: independent scans of ``obj``."""
+    def scan_many(self, obj, n_scans: int, *, rng=None, progress=None, progress_bar=None) -> np.ndarray:
+        """(n_scans, n_frames, n_texels, n_texels) uint16: independent scans of ``obj``
+        (``progress``: a bar over the scans, as in :func:`simulate_dataset`)."""
         obj = as_instance(obj, MeshObject, "obj")
+        progress = progress_keyword(progress, progress_bar, "scan_many")
         n_scans = as_count(n_scans, "n_scans", max=1_000_000, why="each scan is a simulated grasp sequence")
         rng = as_rng(rng)
-        out = [self.scan(obj, rng=rng).frames for _ in progress(range(n_scans), desc=getattr(obj, "name", "scan"),
-                                                                enabled=progress_bar)]
+        out = [self.scan(obj, rng=rng).frames for _ in show_progress(range(n_scans), desc=getattr(obj, "name", "scan"),
+                                                                     enabled=progress)]
         return np.stack(out)
 
     def random_object_pose(self, obj, *, rng=None) -> np.ndarray:
@@ -446,7 +449,7 @@ class TactileScanner:
 
 
 def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | None = None, rng=None,
-                     progress_bar=None):
+                     progress=None, progress_bar=None):
     """Scans of several objects, ready for :class:`SequenceClassifier`.
 
     Parameters
@@ -457,6 +460,9 @@ def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | No
         Scans per object (seed 002: 20).
     scanner : TactileScanner, optional
     rng : None, int or numpy.random.Generator
+    progress : bool, optional
+        A bar over each object's scans (default: when stderr is a terminal; otherwise a line to stderr every few
+        seconds). ``progress_bar=`` is its deprecated old name.
 
     Returns
     -------
@@ -467,8 +473,7 @@ def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | No
     n_scans = as_count(n_scans, "n_scans", max=100_000, why="every scan (n_frames x texels) is kept in memory")
     if scanner is not None and not isinstance(scanner, TactileScanner):
         raise ValidationError(f"scanner must be a TactileScanner or None, got {type(scanner).__name__}")
-    if progress_bar is not None:
-        progress_bar = as_bool(progress_bar, "progress_bar")
+    progress = progress_keyword(progress, progress_bar, "simulate_dataset")
     if isinstance(objects, (str, bytes)) or not hasattr(objects, "__iter__"):
         raise ValidationError(f"objects must be a dict name -> MeshObject or a list of MeshObjects, "
                               f"got {type(objects).__name__}")
@@ -485,6 +490,6 @@ def simulate_dataset(objects, n_scans: int = 20, *, scanner: TactileScanner | No
             raise ValidationError(f"objects[{name!r}] must be a MeshObject, got {type(o).__name__}")
     scanner = scanner or TactileScanner()
     rng = as_rng(rng)
-    X = np.concatenate([scanner.scan_many(o, n_scans, rng=rng, progress_bar=progress_bar) for _, o in items])
+    X = np.concatenate([scanner.scan_many(o, n_scans, rng=rng, progress=progress) for _, o in items])
     y = np.repeat(np.array([name for name, _ in items]), int(n_scans))
     return X, y
