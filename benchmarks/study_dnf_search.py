@@ -139,10 +139,11 @@ def _one(job):
     return float(np.mean(second_half_counts(ds, **tracker_kwargs(values)) == ds.n_surfaces))
 
 
-def evaluate(ex, values: dict, objects, sets) -> dict:
-    """Right count per (cell, object), the mean over the data sets."""
+def evaluate(ex, values, objects, sets, one=_one) -> dict:
+    """Right count per (cell, object), the mean over the data sets; ``one((values, cell,
+    object, set))`` scores one data set (default: a parameter set's tracker)."""
     keys = [(ci, o, s) for ci in range(len(CELLS)) for o in objects for s in sets]
-    right = list(ex.map(_one, [(values, *k) for k in keys], chunksize=2))
+    right = list(ex.map(one, [(values, *k) for k in keys], chunksize=2))
     table = {}
     for (ci, o, s), r in zip(keys, right):
         table.setdefault(f"{ci}|{o}", []).append(r)

@@ -44,7 +44,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from study_dnf_probes import CELLS, _sets, dev_dataset  # noqa: E402
-from study_dnf_search import OBJECTS, summary  # noqa: E402
+from study_dnf_search import OBJECTS, evaluate, summary  # noqa: E402
 
 
 def factory(variant: str):
@@ -115,15 +115,6 @@ def _one(job):
     return right_counts(factory(variant), dev_dataset(ci, obj, s))
 
 
-def evaluate(ex, variant: str, sets) -> dict:
-    keys = [(ci, o, s) for ci in range(len(CELLS)) for o in OBJECTS for s in sets]
-    right = list(ex.map(_one, [(variant, *k) for k in keys], chunksize=4))
-    table = {}
-    for (ci, o, s), r in zip(keys, right):
-        table.setdefault(f"{ci}|{o}", []).append(r)
-    return {k: float(np.mean(v)) for k, v in table.items()}
-
-
 def why(cell: str, obj: str, sets, one_set: int) -> None:
     """The wrong second-half samples of the defaults with the true rotation as odometry."""
     from touchloc.dnf import OrientationTracker, RotationDataset, surface_peaks
@@ -186,7 +177,7 @@ def main(argv=None) -> int:
         for variant in a.variants:
             factory(variant)   # an unknown name fails here, not in a worker
             t0 = time.perf_counter()
-            table = evaluate(ex, variant, sets)
+            table = evaluate(ex, variant, OBJECTS, sets, one=_one)
             r = summary(table)
             print(f"{variant}: cells {r['cells']}, mean {r['mean']:.3f}, score {r['score']:.4f}, "
                   f"8-gon {r['8-gon']:.3f} ({time.perf_counter() - t0:.0f} s)")
