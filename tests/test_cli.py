@@ -478,6 +478,31 @@ def test_every_progress_keyword_is_called_progress(capsys):
         params = inspect.signature(fn).parameters
         assert "progress" in params and params["progress"].default is None, fn.__name__
 
+    # each of them reads the keyword through the same check: both names at once is refused
+    # before any work starts
+    from touchloc.belief import PoseRegion
+    from touchloc.data import load_object
+    from touchloc.models import ProximityModel
+    from touchloc.planners import GuardedTouch, RandomPlanner, SimulatedWorld
+
+    can = load_object("can")
+    world = SimulatedWorld(can, np.eye(4), rng=0)
+    touch = GuardedTouch(np.array([0.0, 0.0, 0.3]), np.array([0.0, 0.0, -1.0]), 0.4)
+    scans = np.random.default_rng(0).uniform(0, 4095, (8, 4, 4, 4))
+    both = dict(progress=False, progress_bar=False)
+    calls = {
+        "explore": lambda: explore(world, ((-0.1,) * 3, (0.1,) * 3), 1, **both),
+        "active_localization": lambda: active_localization(
+            world, ProximityModel(can, 0.002, 0.1), PoseRegion.box((0, 0, 0), 0.01, "yaw"), RandomPlanner(),
+            [touch], **both),
+        "evaluate_protocol": lambda: evaluate_protocol(scans, np.repeat(["a", "b"], 4), lambda s: None, **both),
+        "simulate_dataset": lambda: simulate_dataset({"can": can}, 1, **both),
+        "scan_many": lambda: TactileScanner().scan_many(can, 1, **both),
+    }
+    for name, call in calls.items():
+        with pytest.raises(ValidationError, match=f"{name}: give progress= only"):
+            call()
+
     sets = {"6-gon": [generate_rotation_dataset(6, revolutions=0.2, rng=0)]}
     est = {k: v for k, v in default_estimators(rng=0).items() if k == "histogram"}
     compare(sets, est, progress=False)
