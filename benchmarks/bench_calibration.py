@@ -123,7 +123,7 @@ def _cov(qs, a):
 
 def run(quick: bool = False) -> str:
     warnings.simplefilter("ignore")
-    n_trials = 1 if quick else 3
+    n_trials = 1 if quick else 8
     meshes = MESHES + HELD_OUT_MESHES
     res = run_cells(n_trials)
     names = list(estimators())
