@@ -93,6 +93,70 @@ def factory(variant: str):
                     np.minimum(code, 1.0, out=self._gate)
                 super()._step(a)
         return GatedDecay
+    if variant.startswith("evidence-"):
+        # evidence-T-K-TH[-S]: a leaky histogram of the object-frame codes (time constant T
+        # samples), its contrast against a blur of S deg (default 15), and K times its
+        # excess over TH added to the map field's drive
+        hand_h = variant.startswith("evidence-gwh-")
+        withheld = hand_h or variant.startswith("evidence-gw-")
+        gated = withheld or variant.startswith("evidence-gated-")
+        parts = variant.split("-")[2 if gated else 1:]
+        T, K, TH = (float(x) for x in parts[:3])
+        S = float(parts[3]) if len(parts) > 3 else 15.0
+        from touchloc.dnf.fields import circular_convolve
+
+        class Evidence(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                n = self.n_sites
+                x = np.radians(np.arange(n))
+                d = np.minimum(x, 2 * np.pi - x)
+                g = np.exp(-0.5 * (d / np.radians(S)) ** 2)
+                self._wide = np.fft.rfft(g / g.sum())
+                self._near = np.fft.rfft(g / g.max())
+                self._H = np.zeros(n)
+                self._Hw = np.zeros(n)
+                self._pre = np.zeros(n)
+                step = self.map.step
+                self.map.step = lambda drive: step(drive + self._pre * self._gate())
+
+            def _gate(self):
+                """1, or where the hand field is active (as the match drive's gate) less."""
+                if not gated:
+                    return 1.0
+                from touchloc.dnf.tracker import TWO_PI, sigmoid
+
+                p, n = self.params, self.n_sites
+                shift = int(round(self.orientation * n / TWO_PI)) % n
+                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+                gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
+                if withheld:
+                    # only where no side is remembered nearby: the histogram adds sides, the
+                    # match drive keeps the remembered ones at their place
+                    gate = gate * (1.0 - np.clip(circular_convolve(self.trace.P, self._near, n), 0.0, 1.0))
+                return gate
+
+            def _step(self, a):
+                if a.size:
+                    o = self.odometry + self.correction
+                    if self._last_odo is not None:
+                        o += self._rate * (self.odometry - self._last_odo)
+                    code = population_code(a - o, self.n_sites, self.params.tuning_width, 1.0, normalize=True)
+                    self._H += (code - self._H) / T
+                    C = self._H / max(self._H.mean(), 1e-12)
+                    D = C - circular_convolve(C, self._wide, self.n_sites)
+                    if hand_h:
+                        # the same contrast in the hand's frame, moved into the object frame:
+                        # a contact that holds still against the hand is not a side
+                        self._Hw += (population_code(a, self.n_sites, self.params.tuning_width, 1.0,
+                                                     normalize=True) - self._Hw) / T
+                        Cw = self._Hw / max(self._Hw.mean(), 1e-12)
+                        Dw = Cw - circular_convolve(Cw, self._wide, self.n_sites)
+                        shift = int(round(o * self.n_sites / (2 * np.pi))) % self.n_sites
+                        D = D - np.maximum(np.roll(Dw, -shift), 0.0)
+                    self._pre = K * np.clip(D - TH, 0.0, None)
+                super()._step(a)
+        return Evidence
     if variant.startswith("map-tau-"):
         tau = float(variant.split("-")[2])
         default = TrackerParams().map
