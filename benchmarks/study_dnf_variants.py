@@ -15,18 +15,29 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   evidence against a side, not on time, so that a side the surface field misses on a
   visit is not lost between its writes;
 * ``map-tau-T``: the map field's time constant T samples (default 5), so that a stroke's
-  few detections write sooner.
+  few detections write sooner;
+* ``evidence-[MODE-]T-K-TH``: a leaky histogram of the sample codes in the object frame
+  (time constant T samples, samples with contact only) and its contrast (the histogram
+  over its mean, less its blur by 15 deg); K times the contrast's excess over TH
+  pre-shapes the map field, so that a side seen in many short visits is written on the
+  next one. MODE: none (everywhere), ``gated`` (withheld where the hand field is active,
+  as the match drive is), ``gw`` (and near a remembered side), ``gwh`` (``gw``, less the
+  contrast of the same histogram in the hand's frame at the same place: a contact that
+  holds still against the hand is not a side), ``gws`` (``gw``, only where the object
+  frame's contrast exceeds the hand frame's).
 
 ``--why CELL OBJECT`` runs the defaults with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
 into a side missing, a side split in two, a stray peak, or a mix; for one data set
 (``--set``) it lists each side's visits (samples with a normal within 8 deg of it) and
 the memory's strength there every 20 samples. The figures are in docs/dnf.md ("Sixth
-round").
+round" and "Seventh round").
 
     cd benchmarks
     ../.venv/bin/python study_dnf_variants.py defaults spread-tuning gated-decay-10-3 map-tau-4 --sets 0-7
     ../.venv/bin/python study_dnf_variants.py --why noise=6 8-gon --set 7
+    ../.venv/bin/python study_dnf_variants.py defaults evidence-gwh-150-3-0.4 --sets 8-15
+    ../.venv/bin/python study_dnf_variants.py --peaks noise=6 8-gon 6-gon round --sets 0-3
 """
 
 from __future__ import annotations
@@ -94,74 +105,77 @@ def factory(variant: str):
                 super()._step(a)
         return GatedDecay
     if variant.startswith("evidence-"):
-        # evidence-T-K-TH[-S]: a leaky histogram of the object-frame codes (time constant T
-        # samples), its contrast against a blur of S deg (default 15), and K times its
-        # excess over TH added to the map field's drive
-        hand_h = variant.startswith("evidence-gwh-")
-        withheld = hand_h or variant.startswith("evidence-gw-")
-        gated = withheld or variant.startswith("evidence-gated-")
-        parts = variant.split("-")[2 if gated else 1:]
-        T, K, TH = (float(x) for x in parts[:3])
-        S = float(parts[3]) if len(parts) > 3 else 15.0
-        from touchloc.dnf.fields import circular_convolve
-
-        class Evidence(OrientationTracker):
-            def __init__(self):
-                super().__init__()
-                n = self.n_sites
-                x = np.radians(np.arange(n))
-                d = np.minimum(x, 2 * np.pi - x)
-                g = np.exp(-0.5 * (d / np.radians(S)) ** 2)
-                self._wide = np.fft.rfft(g / g.sum())
-                self._near = np.fft.rfft(g / g.max())
-                self._H = np.zeros(n)
-                self._Hw = np.zeros(n)
-                self._pre = np.zeros(n)
-                step = self.map.step
-                self.map.step = lambda drive: step(drive + self._pre * self._gate())
-
-            def _gate(self):
-                """1, or where the hand field is active (as the match drive's gate) less."""
-                if not gated:
-                    return 1.0
-                from touchloc.dnf.tracker import TWO_PI, sigmoid
-
-                p, n = self.params, self.n_sites
-                shift = int(round(self.orientation * n / TWO_PI)) % n
-                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
-                gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
-                if withheld:
-                    # only where no side is remembered nearby: the histogram adds sides, the
-                    # match drive keeps the remembered ones at their place
-                    gate = gate * (1.0 - np.clip(circular_convolve(self.trace.P, self._near, n), 0.0, 1.0))
-                return gate
-
-            def _step(self, a):
-                if a.size:
-                    o = self.odometry + self.correction
-                    if self._last_odo is not None:
-                        o += self._rate * (self.odometry - self._last_odo)
-                    code = population_code(a - o, self.n_sites, self.params.tuning_width, 1.0, normalize=True)
-                    self._H += (code - self._H) / T
-                    C = self._H / max(self._H.mean(), 1e-12)
-                    D = C - circular_convolve(C, self._wide, self.n_sites)
-                    if hand_h:
-                        # the same contrast in the hand's frame, moved into the object frame:
-                        # a contact that holds still against the hand is not a side
-                        self._Hw += (population_code(a, self.n_sites, self.params.tuning_width, 1.0,
-                                                     normalize=True) - self._Hw) / T
-                        Cw = self._Hw / max(self._Hw.mean(), 1e-12)
-                        Dw = Cw - circular_convolve(Cw, self._wide, self.n_sites)
-                        shift = int(round(o * self.n_sites / (2 * np.pi))) % self.n_sites
-                        D = D - np.maximum(np.roll(Dw, -shift), 0.0)
-                    self._pre = K * np.clip(D - TH, 0.0, None)
-                super()._step(a)
-        return Evidence
+        # evidence-[MODE-]T-K-TH: see the module's docstring
+        parts = variant.split("-")[1:]
+        mode = parts.pop(0) if parts[0] in ("gated", "gw", "gwh", "gws") else "plain"
+        T, K, TH = (float(x) for x in parts)
+        return _evidence(mode, T, K, TH)
     if variant.startswith("map-tau-"):
         tau = float(variant.split("-")[2])
         default = TrackerParams().map
         return lambda: OrientationTracker(map=dataclasses.replace(default, tau=tau))
     raise SystemExit(f"unknown variant {variant!r}")
+
+
+def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
+    """The tracker with evidence histograms pre-shaping its map field (``evidence-*``)."""
+    from touchloc.dnf import OrientationTracker
+    from touchloc.dnf.fields import TWO_PI, circular_convolve, periodic_distance, sigmoid
+    from touchloc.dnf.tracker import population_code
+
+    gated = mode != "plain"
+    withheld = mode in ("gw", "gwh", "gws")
+
+    class Evidence(OrientationTracker):
+        def __init__(self):
+            super().__init__()
+            n = self.n_sites
+            g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
+            self._blur = np.fft.rfft(g / g.sum())    # a mean: the contrast's background
+            self._near = np.fft.rfft(g / g.max())    # a reach: near a remembered side
+            self._hist = np.zeros(n)                 # object frame
+            self._hist_hand = np.zeros(n)            # hand (world) frame
+            self._pre = np.zeros(n)
+            step = self.map.step
+            self.map.step = lambda drive: step(drive + self._pre * self._gate())
+
+        def _contrast(self, h):
+            c = h / max(float(h.mean()), 1e-300)
+            return c - circular_convolve(c, self._blur, self.n_sites)
+
+        def _gate(self):
+            """Where the pre-shape may drive the map field: not where the hand field is
+            active (as the match drive), and with ``gw*`` not near a remembered side."""
+            if not gated:
+                return 1.0
+            p, n = self.params, self.n_sites
+            shift = int(round(self.orientation * n / TWO_PI)) % n
+            g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+            gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
+            if withheld:
+                gate = gate * (1.0 - np.clip(circular_convolve(self.trace.P, self._near, n), 0.0, 1.0))
+            return gate
+
+        def _step(self, a):
+            if a.size:
+                n, w = self.n_sites, self.params.tuning_width
+                # the orientation the filter bank is about to use for this sample
+                o = self.odometry + self.correction
+                if self._last_odo is not None:
+                    o += self._rate * (self.odometry - self._last_odo)
+                self._hist += (population_code(a - o, n, w, 1.0, normalize=True) - self._hist) / T
+                d = self._contrast(self._hist)
+                if mode in ("gwh", "gws"):
+                    self._hist_hand += (population_code(a, n, w, 1.0, normalize=True) - self._hist_hand) / T
+                    shift = int(round(o * n / TWO_PI)) % n
+                    dw = np.roll(self._contrast(self._hist_hand), -shift)
+                    if mode == "gwh":   # less the hand frame's contrast there
+                        d = d - np.maximum(dw, 0.0)
+                    else:               # only where the object frame's is the sharper
+                        d = np.where(d > dw, d, -np.inf)
+                self._pre = K * np.clip(d - TH, 0.0, None)
+            super()._step(a)
+    return Evidence
 
 
 def right_counts(make, ds) -> float:
@@ -224,15 +238,60 @@ def why(cell: str, obj: str, sets, one_set: int) -> None:
           + ", ".join(f"{k} {100 * v / n_all:.0f} %" for k, v in total.items()))
 
 
+def peaks(cell: str, objects, sets, T: float = 150.0, blur: float = 15.0, level: float = 0.3) -> None:
+    """How many sides the evidence histogram holds: the defaults run, and beside them the
+    object-frame histogram of the sample codes (time constant T samples) at the tracker's
+    orientation and at the true rotation; every 10 samples of the second half, the count
+    of its contrast's local maxima above ``level``."""
+    from touchloc.dnf import OrientationTracker
+    from touchloc.dnf.fields import circular_convolve, periodic_distance
+    from touchloc.dnf.tracker import population_code
+
+    n = 360
+    g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
+    wide = np.fft.rfft(g / g.sum())
+
+    def count(h):
+        c = h / h.mean()
+        c = c - circular_convolve(c, wide, n)
+        return int(np.sum((c > level) & (c > np.roll(c, 1)) & (c >= np.roll(c, -1))))
+
+    for obj in objects:
+        for s in sets:
+            ds = dev_dataset(CELLS[cell][0], obj, s)
+            tr = OrientationTracker()
+            h_est, h_true = np.zeros(n), np.zeros(n)
+            est, true = [], []
+            for k, ((a, odo), rot) in enumerate(zip(ds.samples(), ds.true_orientation)):
+                a = np.asarray(a)
+                if a.size:
+                    # the orientation the filter bank is about to use for this sample
+                    o = odo + tr.correction + (tr.rate * (odo - tr._last_odo) if tr._last_odo is not None else 0.0)
+                    h_est += (population_code(a - o, n, tr.params.tuning_width, 1.0, normalize=True) - h_est) / T
+                    h_true += (population_code(a - rot, n, tr.params.tuning_width, 1.0, normalize=True) - h_true) / T
+                tr.step(a, odo)
+                if k + 1 > len(ds.odometry) // 2 and (k + 1) % 10 == 0:
+                    est.append(count(h_est))
+                    true.append(count(h_true))
+            hist = lambda x: ", ".join(f"{v}: {c}" for v, c in enumerate(np.bincount(x)) if c)  # noqa: E731
+            print(f"{cell}, {obj}, data set {s}: peaks (count: read-outs) at the estimate {hist(est)}; "
+                  f"at the true rotation {hist(true)}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["defaults"])
     ap.add_argument("--sets", default="0-7")
     ap.add_argument("--why", nargs=2, metavar=("CELL", "OBJECT"))
+    ap.add_argument("--peaks", nargs="+", metavar="CELL_THEN_OBJECTS",
+                    help="the evidence histogram's side counts: a cell, then objects")
     ap.add_argument("--set", type=int, default=-1, help="with --why: the data set whose sides to list")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     a = ap.parse_args(argv)
     sets = _sets(a.sets)
+    if a.peaks:
+        peaks(a.peaks[0], a.peaks[1:] or OBJECTS, sets)
+        return 0
     if a.why:
         why(a.why[0], a.why[1], sets, a.set)
         return 0
