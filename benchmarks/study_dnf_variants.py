@@ -24,7 +24,10 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   as the match drive is), ``gw`` (and near a remembered side), ``gwh`` (``gw``, less the
   contrast of the same histogram in the hand's frame at the same place: a contact that
   holds still against the hand is not a side), ``gws`` (``gw``, only where the object
-  frame's contrast exceeds the hand frame's).
+  frame's contrast exceeds the hand frame's);
+* ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
+  of the map field's output and W times the contrast's excess over TH (where the hand
+  field is quiet): the evidence writes the memory directly.
 
 ``--why CELL OBJECT`` runs the defaults with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
@@ -104,6 +107,28 @@ def factory(variant: str):
                     np.minimum(code, 1.0, out=self._gate)
                 super()._step(a)
         return GatedDecay
+    if variant.startswith("write-"):
+        # write-K-W-TH: the gwh evidence (T 150, pre-shape K) also writes the memory
+        # directly: the trace's input is max(map output, W x the contrast's excess over TH),
+        # where the hand field is not active
+        K, W, TH = (float(x) for x in variant.split("-")[1:])
+        base = _evidence("gwh", 150.0, K, TH)
+
+        class Write(base):
+            def __init__(self):
+                super().__init__()
+                self._d = np.zeros(self.n_sites)
+                trace_step = self.trace.step
+                self.trace.step = lambda f: trace_step(
+                    np.maximum(f, np.clip(W * np.clip(self._d - TH, 0.0, None) * self._hand_gate(), 0.0, 1.0)))
+
+            def _hand_gate(self):
+                from touchloc.dnf.fields import TWO_PI, circular_convolve, sigmoid
+                p, n = self.params, self.n_sites
+                shift = int(round(self.orientation * n / TWO_PI)) % n
+                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+                return 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
+        return Write
     if variant.startswith("evidence-"):
         # evidence-[MODE-]T-K-TH: see the module's docstring
         parts = variant.split("-")[1:]
@@ -173,6 +198,7 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
                         d = d - np.maximum(dw, 0.0)
                     else:               # only where the object frame's is the sharper
                         d = np.where(d > dw, d, -np.inf)
+                self._d = d
                 self._pre = K * np.clip(d - TH, 0.0, None)
             super()._step(a)
     return Evidence
