@@ -27,7 +27,8 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   frame's contrast exceeds the hand frame's);
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
-  field is quiet): the evidence writes the memory directly.
+  field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
+  3 deg bump at each of the excess's local maxima).
 
 ``--why CELL OBJECT`` runs the defaults with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
@@ -107,20 +108,32 @@ def factory(variant: str):
                     np.minimum(code, 1.0, out=self._gate)
                 super()._step(a)
         return GatedDecay
-    if variant.startswith("write-"):
+    if variant.startswith(("write-", "peakwrite-")):
         # write-K-W-TH: the gwh evidence (T 150, pre-shape K) also writes the memory
         # directly: the trace's input is max(map output, W x the contrast's excess over TH),
         # where the hand field is not active
         K, W, TH = (float(x) for x in variant.split("-")[1:])
+        peaks_only = variant.startswith("peakwrite-")
         base = _evidence("gwh", 150.0, K, TH)
+        from touchloc.dnf.fields import circular_convolve, periodic_distance
 
         class Write(base):
             def __init__(self):
                 super().__init__()
                 self._d = np.zeros(self.n_sites)
                 trace_step = self.trace.step
-                self.trace.step = lambda f: trace_step(
-                    np.maximum(f, np.clip(W * np.clip(self._d - TH, 0.0, None) * self._hand_gate(), 0.0, 1.0)))
+                self.trace.step = lambda f: trace_step(np.maximum(f, self._written()))
+                n = self.n_sites
+                g = np.exp(-0.5 * (periodic_distance(n) / np.radians(3.0)) ** 2)
+                self._bump = np.fft.rfft(g / g.max())
+
+            def _written(self):
+                e = np.clip(W * np.clip(self._d - TH, 0.0, None) * self._hand_gate(), 0.0, 1.0)
+                if not peaks_only:
+                    return e
+                # a 3 deg bump at each local maximum, as high as the excess there
+                top = (e > 0) & (e > np.roll(e, 1)) & (e >= np.roll(e, -1))
+                return np.clip(circular_convolve(np.where(top, e, 0.0), self._bump, self.n_sites), 0.0, 1.0)
 
             def _hand_gate(self):
                 from touchloc.dnf.fields import TWO_PI, circular_convolve, sigmoid
