@@ -24,7 +24,8 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   as the match drive is), ``gw`` (and near a remembered side), ``gwh`` (``gw``, less the
   contrast of the same histogram in the hand's frame at the same place: a contact that
   holds still against the hand is not a side), ``gws`` (``gw``, only where the object
-  frame's contrast exceeds the hand frame's);
+  frame's contrast exceeds the hand frame's), ``gwhr`` (``gwh``, and the histogram moved
+  with the read-out's share of each step's correction, in whole sites);
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -145,7 +146,7 @@ def factory(variant: str):
     if variant.startswith("evidence-"):
         # evidence-[MODE-]T-K-TH: see the module's docstring
         parts = variant.split("-")[1:]
-        mode = parts.pop(0) if parts[0] in ("gated", "gw", "gwh", "gws") else "plain"
+        mode = parts.pop(0) if parts[0] in ("gated", "gw", "gwh", "gws", "gwhr") else "plain"
         T, K, TH = (float(x) for x in parts)
         return _evidence(mode, T, K, TH)
     if variant.startswith("map-tau-"):
@@ -161,6 +162,8 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
     from touchloc.dnf.fields import TWO_PI, circular_convolve, periodic_distance, sigmoid
     from touchloc.dnf.tracker import population_code
 
+    realign = mode.endswith("r")
+    mode = mode[:-1] if realign else mode
     gated = mode != "plain"
     withheld = mode in ("gw", "gwh", "gws")
 
@@ -174,6 +177,7 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
             self._hist = np.zeros(n)                 # object frame
             self._hist_hand = np.zeros(n)            # hand (world) frame
             self._pre = np.zeros(n)
+            self._shift = 0.0
             step = self.map.step
             self.map.step = lambda drive: step(drive + self._pre * self._gate())
 
@@ -213,7 +217,16 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
                         d = np.where(d > dw, d, -np.inf)
                 self._d = d
                 self._pre = K * np.clip(d - TH, 0.0, None)
+            before, rate, last = self.correction, self._rate, self._last_odo
             super()._step(a)
+            if realign and last is not None:
+                # the read-out's share of this step's correction re-registers the histogram:
+                # earlier samples were placed with an estimate that was off by as much
+                self._shift += (self.correction - before - rate * (self.odometry - last)) * self.n_sites / TWO_PI
+                k = int(np.trunc(self._shift))
+                if k:
+                    self._hist = np.roll(self._hist, -k)
+                    self._shift -= k
     return Evidence
 
 
