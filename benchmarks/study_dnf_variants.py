@@ -29,7 +29,8 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
-  3 deg bump at each of the excess's local maxima).
+  3 deg bump at each of the excess's local maxima; ``peakwriter-K-W-TH``: the same on
+  ``gwhr``).
 
 ``--why CELL OBJECT`` runs the defaults with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
@@ -109,13 +110,13 @@ def factory(variant: str):
                     np.minimum(code, 1.0, out=self._gate)
                 super()._step(a)
         return GatedDecay
-    if variant.startswith(("write-", "peakwrite-")):
+    if variant.startswith(("write-", "peakwrite-", "peakwriter-")):
         # write-K-W-TH: the gwh evidence (T 150, pre-shape K) also writes the memory
         # directly: the trace's input is max(map output, W x the contrast's excess over TH),
         # where the hand field is not active
         K, W, TH = (float(x) for x in variant.split("-")[1:])
-        peaks_only = variant.startswith("peakwrite-")
-        base = _evidence("gwh", 150.0, K, TH)
+        peaks_only = variant.startswith("peakwrite")
+        base = _evidence("gwhr" if variant.startswith("peakwriter-") else "gwh", 150.0, K, TH)
         from touchloc.dnf.fields import circular_convolve, periodic_distance
 
         class Write(base):
