@@ -80,8 +80,16 @@ def _one(job):
     return out
 
 
-def _init():
+def _init(ss_ess=None):
     os.environ["NUMBA_NUM_THREADS"] = "1"
+    if ss_ess is not None:
+        # Scaling Series' posterior stage tempers through smc.temper, which it looks up
+        # when the stage runs: give every call this worker makes the study's ess_fraction
+        import functools
+
+        import touchloc.belief.smc as smc
+
+        smc.temper = functools.partial(smc.temper, ess_fraction=ss_ess)
 
 
 def _table(rows, levels=(0.5, 0.9, 0.95)):
@@ -133,6 +141,9 @@ def main(argv=None) -> int:
                     help="SMCFilter's ess_fraction: the share of the effective sample size kept per tempering step")
     ap.add_argument("--jumps", type=float, default=None,
                     help="SMCFilter's accepted moves per particle and tempering step (default: its own)")
+    ap.add_argument("--ss-ess", type=float, default=None,
+                    help="the ess_fraction of Scaling Series' posterior stage (default: temper's, 0.5); "
+                         "use with --estimators ss")
     ap.add_argument("--jsonl", help="also write every trial here")
     a = ap.parse_args(argv)
     bad = [m for m in a.meshes if m not in B.MESHES + B.HELD_OUT_MESHES]
@@ -149,7 +160,9 @@ def main(argv=None) -> int:
     rows = []
     w0 = time.time()
     sink = open(a.jsonl, "w") if a.jsonl else None
-    with ProcessPoolExecutor(a.workers, initializer=_init) as ex:
+    if a.ss_ess is not None and "smc" in a.estimators:
+        ap.error("--ss-ess changes every tempering in the workers, the SMC filter's too: use --estimators ss")
+    with ProcessPoolExecutor(a.workers, initializer=_init, initargs=(a.ss_ess,)) as ex:
         for i, res in enumerate(ex.map(_one, jobs), 1):
             rows.extend(res)
             if sink:
@@ -159,8 +172,9 @@ def main(argv=None) -> int:
             print(f"\r{i}/{len(jobs)} trials", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     load = os.getloadavg()[0]
+    stage = f"Scaling Series' posterior stage ess_fraction {a.ss_ess}; " if a.ss_ess is not None else ""
     print(f"{len(jobs)} trials in {time.time() - w0:.0f} s wall; sensor {a.sigma[0] * 1e3:g} mm / {a.sigma[1]:g}; "
-          f"seed offsets {a.offset}-{a.offset + a.trials - 1}; SMCFilter settings {smc_kw}; "
+          f"seed offsets {a.offset}-{a.offset + a.trials - 1}; SMCFilter settings {smc_kw}; {stage}"
           f"load average {load:.1f}\n")
     print(_table(rows))
     return 0
