@@ -122,7 +122,6 @@ def factory(variant: str):
         class Write(base):
             def __init__(self):
                 super().__init__()
-                self._d = np.zeros(self.n_sites)
                 trace_step = self.trace.step
                 self.trace.step = lambda f: trace_step(np.maximum(f, self._written()))
                 n = self.n_sites
@@ -136,13 +135,6 @@ def factory(variant: str):
                 # a 3 deg bump at each local maximum, as high as the excess there
                 top = (e > 0) & (e > np.roll(e, 1)) & (e >= np.roll(e, -1))
                 return np.clip(circular_convolve(np.where(top, e, 0.0), self._bump, self.n_sites), 0.0, 1.0)
-
-            def _hand_gate(self):
-                from touchloc.dnf.fields import TWO_PI, circular_convolve, sigmoid
-                p, n = self.params, self.n_sites
-                shift = int(round(self.orientation * n / TWO_PI)) % n
-                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
-                return 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
         return Write
     if variant.startswith("evidence-"):
         # evidence-[MODE-]T-K-TH: see the module's docstring
@@ -178,6 +170,7 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
             self._hist = np.zeros(n)                 # object frame
             self._hist_hand = np.zeros(n)            # hand (world) frame
             self._pre = np.zeros(n)
+            self._d = np.zeros(n)                    # the contrast the pre-shape is made of
             self._shift = 0.0
             step = self.map.step
             self.map.step = lambda drive: step(drive + self._pre * self._gate())
@@ -186,17 +179,21 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
             c = h / max(float(h.mean()), 1e-300)
             return c - circular_convolve(c, self._blur, self.n_sites)
 
-        def _gate(self):
-            """Where the pre-shape may drive the map field: not where the hand field is
-            active (as the match drive), and with ``gw*`` not near a remembered side."""
-            if not gated:
-                return 1.0
+        def _hand_gate(self):
+            """0 where the hand field is active (blurred, as the match drive's gate), else 1."""
             p, n = self.params, self.n_sites
             shift = int(round(self.orientation * n / TWO_PI)) % n
             g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
-            gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
+            return 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, n), 0.0, 1.0)
+
+        def _gate(self):
+            """Where the pre-shape may drive the map field: not where the hand field is
+            active, and with ``gw*`` not near a remembered side."""
+            if not gated:
+                return 1.0
+            gate = self._hand_gate()
             if withheld:
-                gate = gate * (1.0 - np.clip(circular_convolve(self.trace.P, self._near, n), 0.0, 1.0))
+                gate = gate * (1.0 - np.clip(circular_convolve(self.trace.P, self._near, self.n_sites), 0.0, 1.0))
             return gate
 
         def _step(self, a):
@@ -291,41 +288,34 @@ def why(cell: str, obj: str, sets, one_set: int) -> None:
           + ", ".join(f"{k} {100 * v / n_all:.0f} %" for k, v in total.items()))
 
 
-def peaks(cell: str, objects, sets, T: float = 150.0, blur: float = 15.0, level: float = 0.3) -> None:
-    """How many sides the evidence histogram holds: the defaults run, and beside them the
-    object-frame histogram of the sample codes (time constant T samples) at the tracker's
-    orientation and at the true rotation; every 10 samples of the second half, the count
-    of its contrast's local maxima above ``level``."""
-    from touchloc.dnf import OrientationTracker
-    from touchloc.dnf.fields import circular_convolve, periodic_distance
+def peaks(cell: str, objects, sets, T: float = 150.0, level: float = 0.3) -> None:
+    """How many sides the evidence histogram holds: the defaults run (``evidence-T-0-0``
+    adds nothing to their drive) with the object-frame histogram of the sample codes at
+    their orientation, and beside it the same histogram at the true rotation; every 10
+    samples of the second half, the count of each contrast's local maxima above ``level``."""
     from touchloc.dnf.tracker import population_code
 
-    n = 360
-    g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
-    wide = np.fft.rfft(g / g.sum())
+    make = _evidence("plain", T, 0.0, 0.0)
 
-    def count(h):
-        c = h / h.mean()
-        c = c - circular_convolve(c, wide, n)
+    def count(tr, h):
+        c = tr._contrast(h)
         return int(np.sum((c > level) & (c > np.roll(c, 1)) & (c >= np.roll(c, -1))))
 
     for obj in objects:
         for s in sets:
             ds = dev_dataset(CELLS[cell][0], obj, s)
-            tr = OrientationTracker()
-            h_est, h_true = np.zeros(n), np.zeros(n)
+            tr = make()
+            h_true = np.zeros(tr.n_sites)
             est, true = [], []
             for k, ((a, odo), rot) in enumerate(zip(ds.samples(), ds.true_orientation)):
                 a = np.asarray(a)
                 if a.size:
-                    # the orientation the filter bank is about to use for this sample
-                    o = odo + tr.correction + (tr.rate * (odo - tr._last_odo) if tr._last_odo is not None else 0.0)
-                    h_est += (population_code(a - o, n, tr.params.tuning_width, 1.0, normalize=True) - h_est) / T
-                    h_true += (population_code(a - rot, n, tr.params.tuning_width, 1.0, normalize=True) - h_true) / T
+                    code = population_code(a - rot, tr.n_sites, tr.params.tuning_width, 1.0, normalize=True)
+                    h_true += (code - h_true) / T
                 tr.step(a, odo)
                 if k + 1 > len(ds.odometry) // 2 and (k + 1) % 10 == 0:
-                    est.append(count(h_est))
-                    true.append(count(h_true))
+                    est.append(count(tr, tr._hist))
+                    true.append(count(tr, h_true))
             hist = lambda x: ", ".join(f"{v}: {c}" for v, c in enumerate(np.bincount(x)) if c)  # noqa: E731
             print(f"{cell}, {obj}, data set {s}: peaks (count: read-outs) at the estimate {hist(est)}; "
                   f"at the true rotation {hist(true)}")
