@@ -72,9 +72,12 @@ def factory(variant: str):
     if variant == "defaults":
         return OrientationTracker
     if variant.startswith("spread-tuning"):
-        keep_gain = variant.endswith("+gain")
+        keep_gain = variant.split("/")[0].endswith("+gain")
+        # spread-tuning/VARIANT: the same on top of another variant (an evidence-* one)
+        inner = variant.split("/", 1)[1] if "/" in variant else None
+        Base = OrientationTracker if inner is None else factory(inner)
 
-        class SpreadTuning(OrientationTracker):
+        class SpreadTuning(Base):
             def _observe_spread(self, sp, mu):
                 self.params = self._base
                 super()._observe_spread(sp, mu)
