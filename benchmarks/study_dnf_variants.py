@@ -9,7 +9,8 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
-  wider tuning also smooths a sample's few scattered normals into one bump;
+  wider tuning also smooths a sample's few scattered normals into one bump
+  (``spread-tuning/VARIANT``: on top of another variant);
 * ``gated-decay-W-M``: the memory decays only where this sample's normals land (a von
   Mises bump of width W deg, capped at 1), at M times the default rate: forgetting on
   evidence against a side, not on time, so that a side the surface field misses on a
