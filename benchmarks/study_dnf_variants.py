@@ -77,6 +77,9 @@ def factory(variant: str):
         # spread-tuning/VARIANT: the same on top of another variant (an evidence-* one)
         inner = variant.split("/", 1)[1] if "/" in variant else None
         Base = OrientationTracker if inner is None else factory(inner)
+        if not isinstance(Base, type):
+            raise SystemExit(f"spread-tuning/VARIANT needs a variant that is a tracker class "
+                             f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
 
         class SpreadTuning(Base):
             def _observe_spread(self, sp, mu):
