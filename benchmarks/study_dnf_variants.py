@@ -11,6 +11,10 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
   wider tuning also smooths a sample's few scattered normals into one bump
   (``spread-tuning/VARIANT``: on top of another variant);
+* ``spreadall-Q[-tune][/VARIANT]``: the spread normalisation fed by every contact's spread
+  from the first sample (not only those on remembered sides), read at the window's
+  quantile Q; ``-tune``: the tuning widens as in ``spread-tuning`` instead of the gain
+  rising (docs/dnf.md, "Eighth round");
 * ``gated-decay-W-M``: the memory decays only where this sample's normals land (a von
   Mises bump of width W deg, capped at 1), at M times the default rate: forgetting on
   evidence against a side, not on time, so that a side the surface field misses on a
@@ -96,6 +100,46 @@ def factory(variant: str):
             t._base = t.params
             return t
         return make
+    if variant.startswith("spreadall-"):
+        # spreadall-Q[-tune]: the spread normalisation fed by every contact from the first
+        # sample (not only those on remembered sides), read at the window's quantile Q;
+        # with -tune, the filter bank's tuning widens instead of the gain rising
+        from bisect import insort, bisect_left
+        parts = variant.split("/")[0].split("-")[1:]
+        q, tune = float(parts[0]), "tune" in parts
+        inner = variant.split("/", 1)[1] if "/" in variant else None
+        Base = OrientationTracker if inner is None else factory(inner)
+        if not isinstance(Base, type):
+            raise SystemExit(f"spreadall-Q/VARIANT needs a variant that is a tracker class "
+                             f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
+
+        class SpreadAll(Base):
+            def _observe_spread(self, sp, mu):
+                p = self._base
+                fifo, ranked = self._spread_fifo, self._spread_ranked
+                for v in sp:
+                    if len(fifo) == fifo.maxlen:
+                        del ranked[bisect_left(ranked, fifo[0])]
+                    fifo.append(v)
+                    insort(ranked, v)
+                n = len(ranked)
+                if n == 0 or n < p.noise_min:
+                    return
+                s = max(ranked[min(n - 1, int(q * n))], 1e-3 * p.noise_ref)
+                w, ref = p.tuning_width, p.noise_ref
+                self._noise = s
+                self._correction_scale = min(1.0, (ref / s) ** 2)
+                if tune:
+                    self._gain_scale = 1.0
+                    self.params = p if s <= ref else dataclasses.replace(p, tuning_width=float(np.sqrt(w * w + s * s - ref * ref)))
+                else:
+                    self._gain_scale = max(1.0, float(np.sqrt((w * w + s * s) / (w * w + ref * ref))))
+
+        def make_all():
+            t = SpreadAll()
+            t._base = t.params
+            return t
+        return make_all
     if variant.startswith("gated-decay-"):
         width, mult = (float(x) for x in variant.split("-")[2:4])
 
