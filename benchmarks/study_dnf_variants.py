@@ -79,11 +79,7 @@ def factory(variant: str):
     if variant.startswith("spread-tuning"):
         keep_gain = variant.split("/")[0].endswith("+gain")
         # spread-tuning/VARIANT: the same on top of another variant (an evidence-* one)
-        inner = variant.split("/", 1)[1] if "/" in variant else None
-        Base = OrientationTracker if inner is None else factory(inner)
-        if not isinstance(Base, type):
-            raise SystemExit(f"spread-tuning/VARIANT needs a variant that is a tracker class "
-                             f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
+        Base = _inner_tracker(variant, "spread-tuning/VARIANT")
 
         class SpreadTuning(Base):
             def _observe_spread(self, sp, mu):
@@ -104,28 +100,22 @@ def factory(variant: str):
         # spreadall-Q[-tune]: the spread normalisation fed by every contact from the first
         # sample (not only those on remembered sides), read at the window's quantile Q;
         # with -tune, the filter bank's tuning widens instead of the gain rising
-        from bisect import insort, bisect_left
+        from collections import deque
+
         parts = variant.split("/")[0].split("-")[1:]
         q, tune = float(parts[0]), "tune" in parts
-        inner = variant.split("/", 1)[1] if "/" in variant else None
-        Base = OrientationTracker if inner is None else factory(inner)
-        if not isinstance(Base, type):
-            raise SystemExit(f"spreadall-Q/VARIANT needs a variant that is a tracker class "
-                             f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
+        Base = _inner_tracker(variant, "spreadall-Q/VARIANT")
 
         class SpreadAll(Base):
             def _observe_spread(self, sp, mu):
                 p = self._base
-                fifo, ranked = self._spread_fifo, self._spread_ranked
-                for v in sp:
-                    if len(fifo) == fifo.maxlen:
-                        del ranked[bisect_left(ranked, fifo[0])]
-                    fifo.append(v)
-                    insort(ranked, v)
-                n = len(ranked)
+                if not hasattr(self, "_every"):
+                    self._every = deque(maxlen=int(round(p.noise_window)))
+                self._every.extend(sp)
+                n = len(self._every)
                 if n == 0 or n < p.noise_min:
                     return
-                s = max(ranked[min(n - 1, int(q * n))], 1e-3 * p.noise_ref)
+                s = max(float(np.sort(self._every)[min(n - 1, int(q * n))]), 1e-3 * p.noise_ref)
                 w, ref = p.tuning_width, p.noise_ref
                 self._noise = s
                 self._correction_scale = min(1.0, (ref / s) ** 2)
@@ -198,6 +188,19 @@ def factory(variant: str):
         default = TrackerParams().map
         return lambda: OrientationTracker(map=dataclasses.replace(default, tau=tau))
     raise SystemExit(f"unknown variant {variant!r}")
+
+
+def _inner_tracker(variant: str, form: str):
+    """The tracker class a ``NAME/VARIANT`` variant builds on (the plain tracker without
+    ``/VARIANT``)."""
+    from touchloc.dnf import OrientationTracker
+
+    inner = variant.split("/", 1)[1] if "/" in variant else None
+    Base = OrientationTracker if inner is None else factory(inner)
+    if not isinstance(Base, type):
+        raise SystemExit(f"{form} needs a variant that is a tracker class "
+                         f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
+    return Base
 
 
 def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):

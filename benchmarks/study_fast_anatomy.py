@@ -33,29 +33,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def record(m, cube, k, seeds):
-    """The likelihood calls of one localisation per seed: (poses, contacts, budget, lower)."""
-    from bench_speed import _trial
-
-    from touchloc.belief import ScalingSeries
-
-    calls = []
-    costs = m._budget_costs
-
-    def recorded(X, contacts, method=None, budget=None, lower=None):
-        calls.append((X.copy(), contacts, budget, lower))
-        return costs(X, contacts, method, budget, lower)
-
-    m._budget_costs = recorded
-    try:
-        for seed in seeds:
-            _, c = _trial(m.obj, cube, k, seed)
-            ScalingSeries(m, rng=seed, progress=False).localize(c, cube)
-    finally:
-        del m._budget_costs
-    return calls
-
-
 def morton_order(X, contacts) -> np.ndarray:
     """The poses' order along a Morton curve of the contacts' centroid in each pose's frame."""
     R, t = X[:, :3, :3], X[:, :3, 3]
@@ -136,7 +113,7 @@ def per_query(m, g, w, P, N):
 
 
 def study(name: str, k: int, seeds) -> None:
-    from bench_speed import _trial
+    from bench_speed import _trial, record_calls
 
     from touchloc.belief import PoseRegion, ScalingSeries
     from touchloc.data import load_object
@@ -146,7 +123,7 @@ def study(name: str, k: int, seeds) -> None:
     m = ProximityModel(load_object(name), 0.002, np.deg2rad(5))
     _, c = _trial(m.obj, cube, 30, 0)
     ScalingSeries(m, rng=0, progress=False).localize(c, cube)  # kernels compiled, grids built
-    calls = record(m, cube, k, seeds)
+    calls = record_calls(m, cube, k, seeds)
     plain, ordered = replay(m, calls, len(seeds)), replay(m, calls, len(seeds), order=True)
     print(f"\n{name}, {k} contacts: {len(calls) / len(seeds):.0f} calls a localisation")
     print(f"  replay ms: fast {plain['fast']:.1f}, exact {plain['exact']:.1f} ({plain['exact'] / plain['fast']:.2f}x);"
