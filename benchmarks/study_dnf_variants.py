@@ -85,17 +85,13 @@ def factory(variant: str):
             def _observe_spread(self, sp, mu):
                 self.params = self._base
                 super()._observe_spread(sp, mu)
-                s, w, ref = self._noise, self._base.tuning_width, self._base.noise_ref
+                s, ref = self._noise, self._base.noise_ref
                 if s > ref:
                     if not keep_gain:
                         self._gain_scale = 1.0
-                    self.params = dataclasses.replace(self._base, tuning_width=float(np.sqrt(w * w + s * s - ref * ref)))
+                    self.params = _widened(self._base, s)
 
-        def make():
-            t = SpreadTuning()
-            t._base = t.params
-            return t
-        return make
+        return _keeping_params(SpreadTuning)
     if variant.startswith("spreadall-"):
         # spreadall-Q[-tune]: the spread normalisation fed by every contact from the first
         # sample (not only those on remembered sides), read at the window's quantile Q;
@@ -121,15 +117,11 @@ def factory(variant: str):
                 self._correction_scale = min(1.0, (ref / s) ** 2)
                 if tune:
                     self._gain_scale = 1.0
-                    self.params = p if s <= ref else dataclasses.replace(p, tuning_width=float(np.sqrt(w * w + s * s - ref * ref)))
+                    self.params = p if s <= ref else _widened(p, s)
                 else:
                     self._gain_scale = max(1.0, float(np.sqrt((w * w + s * s) / (w * w + ref * ref))))
 
-        def make_all():
-            t = SpreadAll()
-            t._base = t.params
-            return t
-        return make_all
+        return _keeping_params(SpreadAll)
     if variant.startswith("gated-decay-"):
         width, mult = (float(x) for x in variant.split("-")[2:4])
 
@@ -188,6 +180,23 @@ def factory(variant: str):
         default = TrackerParams().map
         return lambda: OrientationTracker(map=dataclasses.replace(default, tau=tau))
     raise SystemExit(f"unknown variant {variant!r}")
+
+
+def _widened(p, s: float):
+    """Tracker parameters ``p`` with the filter bank's tuning widened for a spread ``s``
+    above ``noise_ref``: ``sqrt(w^2 + s^2 - noise_ref^2)``."""
+    w, ref = p.tuning_width, p.noise_ref
+    return dataclasses.replace(p, tuning_width=float(np.sqrt(w * w + s * s - ref * ref)))
+
+
+def _keeping_params(cls):
+    """A maker of ``cls`` trackers that keep their own parameters as ``_base`` (the
+    variants that re-tune ``params`` as they go)."""
+    def make():
+        t = cls()
+        t._base = t.params
+        return t
+    return make
 
 
 def _inner_tracker(variant: str, form: str):
