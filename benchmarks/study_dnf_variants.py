@@ -15,6 +15,8 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   from the first sample (not only those on remembered sides), read at the window's
   quantile Q; ``-tune``: the tuning widens as in ``spread-tuning`` instead of the gain
   rising (docs/dnf.md, "Eighth round");
+* ``set:NAME=VALUE[,NAME=VALUE]``: the tracker with those parameters (numbers), for
+  probes of one parameter at a time;
 * ``gated-decay-W-M``: the memory decays only where this sample's normals land (a von
   Mises bump of width W deg, capped at 1), at M times the default rate: forgetting on
   evidence against a side, not on time, so that a side the surface field misses on a
@@ -37,7 +39,7 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   3 deg bump at each of the excess's local maxima; ``peakwriter-K-W-TH``: the same on
   ``gwhr``).
 
-``--why CELL OBJECT`` runs the defaults with the true rotation as odometry (the tracking
+``--why CELL OBJECT`` runs the defaults (or the variants given) with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
 into a side missing, a side split in two, a stray peak, or a mix; for one data set
 (``--set``) it lists each side's visits (samples with a normal within 8 deg of it) and
@@ -47,6 +49,7 @@ round" and "Seventh round").
     cd benchmarks
     ../.venv/bin/python study_dnf_variants.py defaults spread-tuning gated-decay-10-3 map-tau-4 --sets 0-7
     ../.venv/bin/python study_dnf_variants.py --why noise=6 8-gon --set 7
+    ../.venv/bin/python study_dnf_variants.py defaults set:tuning_width=0.14 --why noise=6 8-gon --sets 8-15
     ../.venv/bin/python study_dnf_variants.py defaults evidence-gwh-150-3-0.4 --sets 8-15
     ../.venv/bin/python study_dnf_variants.py --peaks noise=6 8-gon 6-gon round --sets 0-3
 """
@@ -175,6 +178,14 @@ def factory(variant: str):
         mode = parts.pop(0) if parts[0] in ("gated", "gw", "gwh", "gws", "gwhr") else "plain"
         T, K, TH = (float(x) for x in parts)
         return _evidence(mode, T, K, TH)
+    if variant.startswith("set:"):
+        # set:NAME=VALUE[,NAME=VALUE]: the tracker with those parameters (numbers)
+        try:
+            kw = {k: float(v) for k, v in (item.split("=") for item in variant[4:].split(","))}
+            OrientationTracker(**kw)
+        except Exception as e:
+            raise SystemExit(f"set:NAME=VALUE[,NAME=VALUE] with tracker parameters, got {variant!r}: {e}") from None
+        return lambda: OrientationTracker(**kw)
     if variant.startswith("map-tau-"):
         tau = float(variant.split("-")[2])
         default = TrackerParams().map
@@ -306,9 +317,12 @@ def _one(job):
     return right_counts(factory(variant), dev_dataset(ci, obj, s))
 
 
-def why(cell: str, obj: str, sets, one_set: int) -> None:
-    """The wrong second-half samples of the defaults with the true rotation as odometry."""
-    from touchloc.dnf import OrientationTracker, RotationDataset, surface_peaks
+def why(cell: str, obj: str, sets, one_set: int, variant: str = "defaults") -> None:
+    """The wrong second-half samples of a variant (the defaults unless given) with the
+    true rotation as odometry."""
+    from touchloc.dnf import RotationDataset, surface_peaks
+
+    make = factory(variant)
 
     n = dict(zip(OBJECTS, (4, 5, 6, 8, 0)))[obj]
     site = np.radians(np.arange(360))
@@ -317,7 +331,9 @@ def why(cell: str, obj: str, sets, one_set: int) -> None:
         ds = dev_dataset(CELLS[cell][0], obj, s)
         ds = RotationDataset(ds.time, ds.true_orientation, ds.normal_angles, ds.sample_index,
                              true_orientation=ds.true_orientation, n_surfaces=ds.n_surfaces, name=ds.name)
-        tracker = OrientationTracker(rate_prior_mean=0.0)
+        tracker = make()
+        tracker.params = dataclasses.replace(tracker.params, rate_prior_mean=0.0)
+        tracker.reset()
         memory, seen = [], []
         for a, odo in ds.samples():
             tracker.step(a, odo)
@@ -347,7 +363,7 @@ def why(cell: str, obj: str, sets, one_set: int) -> None:
                 strength = " ".join(f"{P[near].max():.2f}" for P in memory[::20])
                 print(f"  side {sd:5.1f} deg: {visits:3d} visits; memory {strength}")
     n_all = sum(total.values())
-    print(f"{cell}, {obj}, true rotation as odometry, data sets {sets[0]}-{sets[-1]}: "
+    print(f"{variant}: {cell}, {obj}, true rotation as odometry, data sets {sets[0]}-{sets[-1]}: "
           + ", ".join(f"{k} {100 * v / n_all:.0f} %" for k, v in total.items()))
 
 
@@ -399,7 +415,8 @@ def main(argv=None) -> int:
         peaks(a.peaks[0], a.peaks[1:] or OBJECTS, sets)
         return 0
     if a.why:
-        why(a.why[0], a.why[1], sets, a.set)
+        for variant in a.variants:
+            why(a.why[0], a.why[1], sets, a.set, variant)
         return 0
     names = {i: name for name, (i, _) in CELLS.items()}
     with ProcessPoolExecutor(a.workers) as ex:
