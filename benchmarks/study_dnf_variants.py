@@ -39,6 +39,10 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   3 deg bump at each of the excess's local maxima; ``peakwriter-K-W-TH``: the same on
   ``gwhr``).
 
+``--ideal CELL OBJECT`` asks whether the data hold the sides at all: at the true rotation,
+the local maxima of a 5 deg density of the object-frame normals (above 0.4 of its peak) of
+the whole run, its second half and its last 150 samples.
+
 ``--why CELL OBJECT`` runs the defaults (or the variants given) with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
 into a side missing, a side split in two, a stray peak, or a mix; for one data set
@@ -400,6 +404,26 @@ def peaks(cell: str, objects, sets, T: float = 150.0, level: float = 0.3) -> Non
                   f"at the true rotation {hist(true)}")
 
 
+def ideal(cell: str, obj: str, sets, width: float = 5.0, level: float = 0.4) -> None:
+    """Whether the data hold the sides: at the true rotation, a kernel density (``width``
+    deg) of the object-frame normals of the whole run, of its second half and of its last
+    150 samples, and the count of its local maxima above ``level`` times its peak."""
+    site = np.arange(360.0)
+    for s in sets:
+        ds = dev_dataset(CELLS[cell][0], obj, s)
+        T = len(ds.true_orientation)
+        seen = [(np.degrees(np.asarray(a) - rot) % 360, k)
+                for k, ((a, _), rot) in enumerate(zip(ds.samples(), ds.true_orientation)) if len(a)]
+        out = []
+        for label, lo in (("whole run", 0), ("second half", T // 2), ("last 150 samples", T - 150)):
+            x = np.concatenate([v for v, k in seen if k >= lo])
+            d = (site[:, None] - x[None, :] + 180.0) % 360.0 - 180.0
+            kde = np.exp(-0.5 * (d / width) ** 2).sum(axis=1)
+            top = (kde > np.roll(kde, 1)) & (kde >= np.roll(kde, -1)) & (kde > level * kde.max())
+            out.append(f"{label} {int(top.sum())}")
+        print(f"{cell}, {obj}, data set {s}, true rotation, maxima of a {width:g} deg density: " + ", ".join(out))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("variants", nargs="*", default=["defaults"])
@@ -408,11 +432,16 @@ def main(argv=None) -> int:
     ap.add_argument("--peaks", nargs="+", metavar="CELL_THEN_OBJECTS",
                     help="the evidence histogram's side counts: a cell, then objects")
     ap.add_argument("--set", type=int, default=-1, help="with --why: the data set whose sides to list")
+    ap.add_argument("--ideal", nargs=2, metavar=("CELL", "OBJECT"),
+                    help="the maxima of a density of all the normals at the true rotation")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     a = ap.parse_args(argv)
     sets = _sets(a.sets)
     if a.peaks:
         peaks(a.peaks[0], a.peaks[1:] or OBJECTS, sets)
+        return 0
+    if a.ideal:
+        ideal(a.ideal[0], a.ideal[1], sets)
         return 0
     if a.why:
         for variant in a.variants:
