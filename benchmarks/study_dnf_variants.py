@@ -33,6 +33,13 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
   holds still against the hand is not a side), ``gws`` (``gw``, only where the object
   frame's contrast exceeds the hand frame's), ``gwhr`` (``gwh``, and the histogram moved
   with the read-out's share of each step's correction, in whole sites);
+* ``detect-T-K-TH[-h][-g]``: as ``evidence-gw-T-K-TH``, but the histogram holds the surface
+  field's detections (its output in the object frame), which a corner's broad spread of
+  normals seldom makes; ``-h``: less the same histogram in the hand's frame; ``-g``: not
+  withheld near remembered sides (gated by the hand field only); ``-r``: none at all while
+  the detections' hand-frame histogram is the more concentrated (its fullest tenth of
+  sites holding more of its mass than the object frame's does, by a ratio below 0.45 -
+  0.7), as a round object's is, and ramped in over the first T samples with contact;
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -176,6 +183,14 @@ def factory(variant: str):
                 top = (e > 0) & (e > np.roll(e, 1)) & (e >= np.roll(e, -1))
                 return np.clip(circular_convolve(np.where(top, e, 0.0), self._bump, self.n_sites), 0.0, 1.0)
         return Write
+    if variant.startswith("detect-"):
+        # detect-T-K-TH[-h][-g]: as evidence-gw, but the histogram holds the surface field's
+        # detections (its output), not the sample codes; -h: less the same in the hand
+        # frame; -g: gated by the hand field only, not withheld near remembered sides
+        parts = variant.split("-")[1:]
+        T, K, TH = (float(x) for x in parts[:3])
+        return _detections(T, K, TH, hand="h" in parts[3:], near_sides="g" not in parts[3:],
+                           held="r" in parts[3:])
     if variant.startswith("evidence-"):
         # evidence-[MODE-]T-K-TH: see the module's docstring
         parts = variant.split("-")[1:]
@@ -225,6 +240,50 @@ def _inner_tracker(variant: str, form: str):
         raise SystemExit(f"{form} needs a variant that is a tracker class "
                          f"(evidence-*, write-*, gated-decay-*), got {inner!r}")
     return Base
+
+
+def _concentration(h, share: float = 0.1) -> float:
+    """The share of a histogram's mass in its fullest ``share`` of sites."""
+    k = max(1, int(round(share * h.size)))
+    return float(np.sum(np.partition(h, h.size - k)[-k:]) / max(float(h.sum()), 1e-300))
+
+
+def _detections(T: float, K: float, TH: float, hand: bool, near_sides: bool = True, held: bool = False):
+    """The tracker with a leaky histogram of its surface field's detections pre-shaping
+    its map field (``detect-*``), gated as ``evidence-gw`` (``near_sides`` False: as
+    ``evidence-gated``)."""
+    from touchloc.dnf.fields import TWO_PI
+
+    base = _evidence("gw" if near_sides else "gated", T, 0.0, TH)
+
+    class Detections(base):
+        def __init__(self):
+            super().__init__()
+            self._det = np.zeros(self.n_sites)
+            self._det_hand = np.zeros(self.n_sites)
+            step = self.surface.step
+
+            def surface_step(stim):
+                f = step(stim)
+                n = self.n_sites
+                self._det += (f - self._det) / T
+                d = self._contrast(self._det)
+                shift = int(round(self.orientation * n / TWO_PI)) % n
+                self._det_hand += (np.roll(f, shift) - self._det_hand) / T
+                if hand:
+                    d = d - np.maximum(np.roll(self._contrast(self._det_hand), -shift), 0.0)
+                self._d = d
+                self._pre = K * np.clip(d - TH, 0.0, None)
+                if held:
+                    # an object whose detections hold still against the hand (a round one)
+                    # gets no pre-shape: its hand-frame histogram is the more concentrated;
+                    # and none before the histograms hold T samples' worth
+                    self._seen = getattr(self, "_seen", 0) + 1
+                    r = _concentration(self._det) / max(_concentration(self._det_hand), 1e-300)
+                    self._pre *= float(np.clip((r - 0.45) / 0.25, 0.0, 1.0)) * min(1.0, self._seen / T)
+                return f
+            self.surface.step = surface_step
+    return Detections
 
 
 def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):

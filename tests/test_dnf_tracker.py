@@ -98,9 +98,11 @@ def test_reset_forgets_everything():
     for a, odo in _regular_samples(6, 60, rng=3):
         tr.step(a, odo)
     assert tr.memory.max() > 0
+    assert tr._detections.max() > 0
     tr.reset()
     assert tr.memory.max() == 0 and tr.correction == 0 and tr.n_steps == 0
     assert np.all(tr.surface.u == tr.params.surface.h)
+    assert tr._detections.max() == 0 and tr._detections_hand.max() == 0 and tr._detection_samples == 0
 
 
 def test_seed_result_on_simulated_data(datasets):

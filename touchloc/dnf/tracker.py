@@ -73,6 +73,20 @@ next to the first. The drive needs a detection nearby (the loop memory -> match 
 memory must not run without contact) and is withheld where the hand field is active or
 close to threshold (a round object's sliding normal must not keep a stray peak alive).
 
+Sides seen in many short visits (an addition to seed 000): with one or two noisy normals
+a finger, a side is detected in bursts of a sample or two, and the map field (time constant
+5 samples) seldom fires on one visit. So the tracker keeps a leaky histogram of the
+surface field's detections in the object frame (``detection_window`` samples) and its twin
+in the hand's frame. A place whose detections stand out in the object frame and not in the
+hand's frame pre-shapes the map field (``detection_gain`` times the contrast's excess over
+``detection_threshold``), so that the next visit writes it. The contrast is the histogram
+over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes, seldom
+come from a corner's broad spread of normals. The pre-shape is withheld where the hand
+field is active, as the match drive is. It is off altogether while the hand-frame
+histogram is the more concentrated of the two, as a round object's is, since its normal
+points at the finger. It also ramps in over the first ``detection_window`` samples with
+contact.
+
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
 time constants are in samples.
@@ -94,6 +108,12 @@ from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circula
                      periodic_distance, site_angles)
 
 __all__ = ["TrackerParams", "OrientationTracker", "population_code", "as_angles", "as_odometry"]
+
+
+def _concentration(h: np.ndarray, share: float = 0.1) -> float:
+    """The share of a non-negative histogram's mass in its fullest ``share`` of sites."""
+    k = max(1, int(round(share * h.size)))
+    return float(np.sum(np.partition(h, h.size - k)[-k:]) / max(float(h.sum()), 1e-300))
 
 
 def as_odometry(odometry) -> float:
@@ -303,6 +323,22 @@ class TrackerParams:
     hand: FieldParams = FieldParams(tau=5.0, h=-5.0, beta=4.0, c_exc=0.6, sigma_exc=np.radians(3.0),
                                     c_inh=0.2, sigma_inh=np.radians(12.0))
     hand_to_map: float = 10.0
+    #: detection evidence (an addition to seed 000; see the module): leaky histograms of
+    #: the surface field's detections over ``detection_window`` samples with contact, in
+    #: the object and the hand frame; ``detection_gain`` times the object frame's contrast
+    #: (over its mean, less its blur by ``detection_blur``), less the hand frame's, in
+    #: excess of ``detection_threshold`` pre-shapes the map field. It is scaled by the
+    #: ratio of the two histograms' concentrations (the mass in their fullest tenth of
+    #: sites, object over hand), from 0 at ``detection_hold_low`` to 1 at
+    #: ``detection_hold_high``: a round object's detections hold still against the hand
+    #: (ratios 0.2-0.35 on the sweep's development data, polygons 0.5-1.6).
+    #: ``detection_gain = 0`` turns it off
+    detection_window: float = 150.0
+    detection_gain: float = 3.0
+    detection_threshold: float = 0.4
+    detection_blur: float = np.radians(15.0)
+    detection_hold_low: float = 0.55
+    detection_hold_high: float = 0.65
     #: the match field's output into the map field (an addition to seed 000): a detected
     #: side that matches a remembered one also drives the map field at the *remembered*
     #: place, so the memory is refreshed where it already holds the side instead of
@@ -434,6 +470,17 @@ class OrientationTracker:
             raise ValidationError(f"normals_ref must be 0 to 1e6 normals per contact (0: off), got {p.normals_ref!r}")
         if not (0.0 < p.contact_gap < np.pi):
             raise ValidationError(f"contact_gap must be in (0, pi) rad, got {p.contact_gap!r}")
+        if not (1.0 <= p.detection_window <= 1e6):
+            raise ValidationError(f"detection_window must be 1 to 1e6 samples, got {p.detection_window!r}")
+        if not (0.0 <= p.detection_gain <= 1e3):
+            raise ValidationError(f"detection_gain must be 0 to 1e3 (0: off), got {p.detection_gain!r}")
+        if not (0.0 <= p.detection_threshold <= 1e3):
+            raise ValidationError(f"detection_threshold must be 0 to 1e3, got {p.detection_threshold!r}")
+        if not (0.0 < p.detection_blur < np.pi):
+            raise ValidationError(f"detection_blur must be in (0, pi) rad, got {p.detection_blur!r}")
+        if not (0.0 <= p.detection_hold_low < p.detection_hold_high <= 1e3):
+            raise ValidationError(f"need 0 <= detection_hold_low < detection_hold_high <= 1e3, got "
+                                  f"{p.detection_hold_low!r} and {p.detection_hold_high!r}")
         self.params = p
         n = self.n_sites = int(p.n_sites)
         self.angles = site_angles(n)
@@ -447,6 +494,8 @@ class OrientationTracker:
         d = periodic_distance(n)
         g = np.exp(-0.5 * (d / p.match_width) ** 2)
         self._match_blur_fft = np.fft.rfft(g / g.max())
+        g = np.exp(-0.5 * (d / p.detection_blur) ** 2)
+        self._detection_blur_fft = np.fft.rfft(g / g.sum())   # a mean: the contrast's background
         # signed deviation of each error-field site from the centre (site 0), rad
         self._dev = (self.angles + np.pi) % TWO_PI - np.pi
         self._window = np.exp(-0.5 * (self._dev / p.error_window) ** 2)
@@ -467,6 +516,11 @@ class OrientationTracker:
         self._gain_scale = 1.0
         self._correction_scale = 1.0
         self._noise = float(p.noise_ref)
+        self._detections = np.zeros(n)        # object frame
+        self._detections_hand = np.zeros(n)   # hand (world) frame
+        self._detections_total = np.zeros(n)  # the same, summed over the run
+        self._detections_hand_total = np.zeros(n)
+        self._detection_samples = 0
 
     def _rate0(self) -> float:
         """The rate before any read-out: the prior's mean (``rate_mode="mean"`` with
@@ -512,6 +566,11 @@ class OrientationTracker:
         self._gain_scale = 1.0
         self._correction_scale = 1.0
         self._noise = float(self.params.noise_ref)
+        self._detections[:] = 0.0
+        self._detections_hand[:] = 0.0
+        self._detections_total[:] = 0.0
+        self._detections_hand_total[:] = 0.0
+        self._detection_samples = 0
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -569,12 +628,19 @@ class OrientationTracker:
         f_s = self.surface.step(stim)
         P = self.trace.P
         drive = p.surface_to_map * f_s + p.memory_to_map * P
+        # world angle = object-frame angle + orientation: a shift by whole sites
+        shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
+        pre = self._detection_preshape(f_s, shift) if p.detection_gain > 0 else None
         f_h = None
+        hand_gate = None
         if p.hand_to_map:
-            # world angle = object-frame angle + orientation: a shift by whole sites
-            shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
             f_h = np.roll(self.hand.step(p.surface_to_map * np.roll(f_s, shift)), -shift)
             drive = drive - p.hand_to_map * f_h
+            # 0 near a contact that holds (or nearly holds) still against the hand, else 1
+            g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+            hand_gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, self.n_sites), 0.0, 1.0)
+        if pre is not None:
+            drive = drive + (pre if hand_gate is None else pre * hand_gate)
         # tracking pathway: match field pulled towards remembered sides (the memory as it
         # was before this sample)
         broad = circular_convolve(f_s, self._match_blur_fft, self.n_sites)
@@ -583,10 +649,8 @@ class OrientationTracker:
             # only while a detected side is near: memory -> match -> map -> memory must not
             # sustain itself without contact
             m = p.match_to_map * f_match * np.minimum(broad, 1.0)
-            if f_h is not None:
-                # withheld near a contact that holds (or nearly holds) still against the hand
-                g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
-                m = m * (1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, self.n_sites), 0.0, 1.0))
+            if hand_gate is not None:
+                m = m * hand_gate
             drive = drive + m
         f_m = self.map.step(drive)
         self.trace.step(f_m)
@@ -612,6 +676,32 @@ class OrientationTracker:
             else:
                 self.last_error = 0.0
         self.n_steps += 1
+
+    def _detection_preshape(self, f_s: np.ndarray, shift: int) -> np.ndarray | None:
+        """Add this sample's detections ``f_s`` (object frame; ``shift`` sites to the hand
+        frame) to the detection histograms, and return the map field's pre-shape from
+        them (see ``TrackerParams.detection_gain``), or None while it is off."""
+        p = self.params
+        self._detection_samples += 1
+        f_hand = np.roll(f_s, shift)
+        self._detections += (f_s - self._detections) / p.detection_window
+        self._detections_hand += (f_hand - self._detections_hand) / p.detection_window
+        self._detections_total += f_s
+        self._detections_hand_total += f_hand
+        if self._detection_samples < p.detection_window:
+            return None
+        ratio = _concentration(self._detections_total) / max(_concentration(self._detections_hand_total), 1e-300)
+        scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
+        if not scale > 0.0:
+            return None
+        hand = np.roll(self._contrast(self._detections_hand), -shift)
+        d = self._contrast(self._detections) - np.maximum(hand, 0.0)
+        return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None)
+
+    def _contrast(self, h: np.ndarray) -> np.ndarray:
+        """A histogram over its mean, less its blur by ``detection_blur``."""
+        c = h / max(float(h.mean()), 1e-300)
+        return c - circular_convolve(c, self._detection_blur_fft, self.n_sites)
 
     def _count_weight(self, n_normals: int, n_contacts: int) -> float:
         """The read-out's weight by a sample's normals per contact (``normals_ref``)."""
