@@ -3,9 +3,11 @@
 Each variant changes what the tracker computes, not only a parameter, and runs on the
 development seeds ``[11, cell, object, set]`` of all 13 cells of the robustness sweep and
 all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on data sets
-0-7: 10 cells, mean 0.969, 8-gon 0.907):
+0-7: 10 cells, mean 0.969, 8-gon 0.907 before the ninth round, 11, 0.978, 0.934 since):
 
-* ``defaults``;
+* ``defaults`` (the shipped tracker: since the ninth round with its detection evidence;
+  the figures of the earlier rounds in docs/dnf.md are those of the tracker without it,
+  ``set:detection_gain=0``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
