@@ -82,10 +82,9 @@ hand's frame pre-shapes the map field (``detection_gain`` times the contrast's e
 ``detection_threshold``), so that the next visit writes it. The contrast is the histogram
 over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes, seldom
 come from a corner's broad spread of normals. The pre-shape is withheld where the hand
-field is active, as the match drive is. It is off altogether while the hand-frame
-histogram is the more concentrated of the two, as a round object's is, since its normal
-points at the finger. It also ramps in over the first ``detection_window`` samples with
-contact.
+field is active, as the match drive is. It is off altogether while the run's hand-frame
+detections are the more concentrated, as a round object's are, since its normal points at
+the finger. It also waits for the first ``detection_window`` samples with contact.
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
@@ -327,12 +326,13 @@ class TrackerParams:
     #: the surface field's detections over ``detection_window`` samples with contact, in
     #: the object and the hand frame; ``detection_gain`` times the object frame's contrast
     #: (over its mean, less its blur by ``detection_blur``), less the hand frame's, in
-    #: excess of ``detection_threshold`` pre-shapes the map field. It is scaled by the
-    #: ratio of the two histograms' concentrations (the mass in their fullest tenth of
-    #: sites, object over hand), from 0 at ``detection_hold_low`` to 1 at
+    #: excess of ``detection_threshold`` pre-shapes the map field, from the
+    #: ``detection_window``-th sample with contact on. It is scaled by the ratio of the
+    #: concentrations of the run's summed detections (the mass in their fullest tenth of
+    #: sites, object frame over hand frame), from 0 at ``detection_hold_low`` to 1 at
     #: ``detection_hold_high``: a round object's detections hold still against the hand
-    #: (ratios 0.2-0.35 on the sweep's development data, polygons 0.5-1.6).
-    #: ``detection_gain = 0`` turns it off
+    #: (ratios 0.16-0.52 on dense and seed-faithful development data after 150 samples,
+    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"). ``detection_gain = 0`` turns it off
     detection_window: float = 150.0
     detection_gain: float = 3.0
     detection_threshold: float = 0.4
