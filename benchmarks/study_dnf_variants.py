@@ -7,7 +7,9 @@ all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on da
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence;
   the figures of the earlier rounds in docs/dnf.md are those of the tracker without it,
-  ``set:detection_gain=0``);
+  ``set:detection_gain=0``; the ``evidence-*``, ``write-*`` and ``detect-*`` variants
+  turn it off themselves, so they give the figures of their rounds, while the others
+  now run on top of it);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -244,17 +246,12 @@ def _inner_tracker(variant: str, form: str):
     return Base
 
 
-def _concentration(h, share: float = 0.1) -> float:
-    """The share of a histogram's mass in its fullest ``share`` of sites."""
-    k = max(1, int(round(share * h.size)))
-    return float(np.sum(np.partition(h, h.size - k)[-k:]) / max(float(h.sum()), 1e-300))
-
-
 def _detections(T: float, K: float, TH: float, hand: bool, near_sides: bool = True, held: bool = False):
     """The tracker with a leaky histogram of its surface field's detections pre-shaping
     its map field (``detect-*``), gated as ``evidence-gw`` (``near_sides`` False: as
     ``evidence-gated``)."""
     from touchloc.dnf.fields import TWO_PI
+    from touchloc.dnf.tracker import _concentration
 
     base = _evidence("gw" if near_sides else "gated", T, 0.0, TH)
 
@@ -302,6 +299,9 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
     class Evidence(OrientationTracker):
         def __init__(self):
             super().__init__()
+            # on the tracker as the seventh to ninth rounds screened it: without the detection
+            # evidence it has shipped since (``detect-*`` is its screening form)
+            self.params = dataclasses.replace(self.params, detection_gain=0.0)
             n = self.n_sites
             g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
             self._blur = np.fft.rfft(g / g.sum())    # a mean: the contrast's background

@@ -79,8 +79,8 @@ def test_a_round_object_gets_no_detection_preshape(cell, i):
     peaks = []
     preshape = tr._detection_preshape
 
-    def recorded(f_s, shift):
-        out = preshape(f_s, shift)
+    def recorded(f_s, f_hand, shift):
+        out = preshape(f_s, f_hand, shift)
         peaks.append(0.0 if out is None else float(out.max()))
         return out
 
@@ -98,6 +98,6 @@ def test_detection_preshape_is_on_for_a_polygon():
     tr = OrientationTracker()
     peaks = []
     preshape = tr._detection_preshape
-    tr._detection_preshape = lambda f_s, shift: peaks.append(preshape(f_s, shift)) or peaks[-1]
+    tr._detection_preshape = lambda *a: peaks.append(preshape(*a)) or peaks[-1]
     tr.run(ds)
     assert np.mean([p is not None and p.max() > 0 for p in peaks[len(peaks) // 2:]]) > 0.5

@@ -630,11 +630,12 @@ class OrientationTracker:
         drive = p.surface_to_map * f_s + p.memory_to_map * P
         # world angle = object-frame angle + orientation: a shift by whole sites
         shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
-        pre = self._detection_preshape(f_s, shift) if p.detection_gain > 0 else None
+        f_s_hand = np.roll(f_s, shift)   # the detections in the hand's frame
+        pre = self._detection_preshape(f_s, f_s_hand, shift) if p.detection_gain > 0 else None
         f_h = None
         hand_gate = None
         if p.hand_to_map:
-            f_h = np.roll(self.hand.step(p.surface_to_map * np.roll(f_s, shift)), -shift)
+            f_h = np.roll(self.hand.step(p.surface_to_map * f_s_hand), -shift)
             drive = drive - p.hand_to_map * f_h
             # 0 near a contact that holds (or nearly holds) still against the hand, else 1
             g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
@@ -677,13 +678,13 @@ class OrientationTracker:
                 self.last_error = 0.0
         self.n_steps += 1
 
-    def _detection_preshape(self, f_s: np.ndarray, shift: int) -> np.ndarray | None:
-        """Add this sample's detections ``f_s`` (object frame; ``shift`` sites to the hand
-        frame) to the detection histograms, and return the map field's pre-shape from
-        them (see ``TrackerParams.detection_gain``), or None while it is off."""
+    def _detection_preshape(self, f_s: np.ndarray, f_hand: np.ndarray, shift: int) -> np.ndarray | None:
+        """Add this sample's detections (``f_s`` in the object frame, ``f_hand`` the same
+        moved ``shift`` sites into the hand's frame) to the detection histograms, and return
+        the map field's pre-shape from them (see ``TrackerParams.detection_gain``), or None
+        while it is off."""
         p = self.params
         self._detection_samples += 1
-        f_hand = np.roll(f_s, shift)
         self._detections += (f_s - self._detections) / p.detection_window
         self._detections_hand += (f_hand - self._detections_hand) / p.detection_window
         self._detections_total += f_s
