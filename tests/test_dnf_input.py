@@ -220,6 +220,8 @@ def test_spread_normalisation_counts_the_sides_under_6_degrees_of_noise():
     (dict(detection_gain=np.inf), "detection_gain"), (dict(detection_threshold=np.nan), "detection_threshold"),
     (dict(detection_blur=0.0), "detection_blur"), (dict(detection_blur=4.0), "detection_blur"),
     (dict(detection_hold_low=0.8), "detection_hold"), (dict(detection_hold_high=-1.0), "detection_hold"),
+    (dict(detection_mute_low=0.5), "detection_mute"), (dict(detection_mute_high=-1.0), "detection_mute"),
+    (dict(detection_mute_low=np.nan), "detection_mute"), (dict(detection_mute_high=np.inf), "detection_mute"),
 ])
 def test_spread_normalisation_parameters_are_checked(bad, match):
     with pytest.raises(ValidationError, match=match):

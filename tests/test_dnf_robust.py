@@ -70,34 +70,53 @@ def test_detection_evidence_writes_the_sides_of_short_visits():
     assert np.mean(on) >= 0.8
 
 
+def test_a_round_object_at_6_deg_writes_no_stray_side():
+    # at 6 deg a round object's scattered normals sometimes cluster long enough for the map
+    # field to write a stray side, which the memory then keeps (these five data sets: 0.01-0.79
+    # right, mean 0.48, with the mute off). Its detections hold still against the hand, so
+    # the concentration ratio mutes the map field: every second-half count is right
+    on, off = [], []
+    for i in (10, 11, 12, 13, 15):
+        ds = _dataset(6, 0, i)
+        on.append(run_estimator("on", OrientationTracker, ds).accuracy)
+        off.append(run_estimator("off", lambda: OrientationTracker(detection_mute_high=0.0), ds).accuracy)
+    assert min(on) >= 0.95
+    assert np.mean(off) <= 0.7
+
+
 @pytest.mark.parametrize("cell, i", [(6, 1), (6, 3), (1, 0)])
 def test_a_round_object_gets_no_detection_preshape(cell, i):
     # a round object's detections hold still against the hand: its hand-frame histogram
-    # is the more concentrated, and the pre-shape stays off through the second half
+    # is the more concentrated, so the pre-shape stays off and the map field is muted
+    # (the drive's factor 0.04 or less on average through the second half of these sets)
     ds = _dataset(cell, 0, i)
     tr = OrientationTracker()
-    peaks = []
-    preshape = tr._detection_preshape
+    peaks, mutes = [], []
+    evidence = tr._detection_evidence
 
     def recorded(f_s, f_hand, shift):
-        out = preshape(f_s, f_hand, shift)
-        peaks.append(0.0 if out is None else float(out.max()))
-        return out
+        pre, mute = evidence(f_s, f_hand, shift)
+        peaks.append(0.0 if pre is None else float(pre.max()))
+        mutes.append(mute)
+        return pre, mute
 
-    tr._detection_preshape = recorded
+    tr._detection_evidence = recorded
     tr.run(ds)
     assert len(peaks) > 100
     assert max(peaks[len(peaks) // 2:]) == 0.0
+    assert np.mean(mutes[len(mutes) // 2:]) <= 0.1
     assert run_estimator("DNF", OrientationTracker, ds).accuracy == 1.0
 
 
 def test_detection_preshape_is_on_for_a_polygon():
     # the same gate lets a polygon's evidence through: the pre-shape is positive at its
-    # sides in the second half
+    # sides in the second half, and the map field is never muted
     ds = _dataset(6, 8, 0)
     tr = OrientationTracker()
-    peaks = []
-    preshape = tr._detection_preshape
-    tr._detection_preshape = lambda *a: peaks.append(preshape(*a)) or peaks[-1]
+    out = []
+    evidence = tr._detection_evidence
+    tr._detection_evidence = lambda *a: out.append(evidence(*a)) or out[-1]
     tr.run(ds)
-    assert np.mean([p is not None and p.max() > 0 for p in peaks[len(peaks) // 2:]]) > 0.5
+    second = out[len(out) // 2:]
+    assert np.mean([pre is not None and pre.max() > 0 for pre, _ in second]) > 0.5
+    assert min(mute for _, mute in out) == 1.0

@@ -339,6 +339,16 @@ class TrackerParams:
     detection_blur: float = np.radians(15.0)
     detection_hold_low: float = 0.55
     detection_hold_high: float = 0.65
+    #: the same ratio mutes the map field: its drive is scaled from 0 at
+    #: ``detection_mute_low`` to 1 at ``detection_mute_high`` (from the
+    #: ``detection_window``-th sample with contact on), so that a run whose detections hold
+    #: still against the hand writes no side, and sides written before fade at the
+    #: memory's decay rate. Only a round object's ratios fall this low: in the second half
+    #: of seed-faithful development data round objects stay within 0.15-0.33 (0.24 or less
+    #: in nine runs of ten), polygons within 0.33-2.4 (one run below 0.46); docs/dnf.md,
+    #: "Tenth round". ``detection_mute_high = 0`` turns it off
+    detection_mute_low: float = 0.25
+    detection_mute_high: float = 0.35
     #: the match field's output into the map field (an addition to seed 000): a detected
     #: side that matches a remembered one also drives the map field at the *remembered*
     #: place, so the memory is refreshed where it already holds the side instead of
@@ -481,6 +491,11 @@ class OrientationTracker:
         if not (0.0 <= p.detection_hold_low < p.detection_hold_high <= 1e3):
             raise ValidationError(f"need 0 <= detection_hold_low < detection_hold_high <= 1e3, got "
                                   f"{p.detection_hold_low!r} and {p.detection_hold_high!r}")
+        if not (0.0 <= p.detection_mute_low <= 1e3 and 0.0 <= p.detection_mute_high <= 1e3
+                and (p.detection_mute_high == 0.0 or p.detection_mute_low <= p.detection_mute_high)):
+            raise ValidationError(f"need 0 <= detection_mute_low <= detection_mute_high <= 1e3 (or "
+                                  f"detection_mute_high = 0: off), got {p.detection_mute_low!r} and "
+                                  f"{p.detection_mute_high!r}")
         self.params = p
         n = self.n_sites = int(p.n_sites)
         self.angles = site_angles(n)
@@ -631,7 +646,8 @@ class OrientationTracker:
         # world angle = object-frame angle + orientation: a shift by whole sites
         shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
         f_s_hand = np.roll(f_s, shift)   # the detections in the hand's frame
-        pre = self._detection_preshape(f_s, f_s_hand, shift) if p.detection_gain > 0 else None
+        pre, mute = (self._detection_evidence(f_s, f_s_hand, shift)
+                     if p.detection_gain > 0 or p.detection_mute_high > 0 else (None, 1.0))
         f_h = None
         hand_gate = None
         if p.hand_to_map:
@@ -653,7 +669,7 @@ class OrientationTracker:
             if hand_gate is not None:
                 m = m * hand_gate
             drive = drive + m
-        f_m = self.map.step(drive)
+        f_m = self.map.step(drive if mute == 1.0 else mute * drive)
         self.trace.step(f_m)
         if p.correct:
             k = self._f32(p.to_comparison)
@@ -678,11 +694,12 @@ class OrientationTracker:
                 self.last_error = 0.0
         self.n_steps += 1
 
-    def _detection_preshape(self, f_s: np.ndarray, f_hand: np.ndarray, shift: int) -> np.ndarray | None:
+    def _detection_evidence(self, f_s: np.ndarray, f_hand: np.ndarray, shift: int) -> tuple:
         """Add this sample's detections (``f_s`` in the object frame, ``f_hand`` the same
-        moved ``shift`` sites into the hand's frame) to the detection histograms, and return
-        the map field's pre-shape from them (see ``TrackerParams.detection_gain``), or None
-        while it is off."""
+        moved ``shift`` sites into the hand's frame) to the detection histograms. Returns
+        the map field's pre-shape from them (see ``TrackerParams.detection_gain``; None
+        while it is off) and the factor of the map field's drive (see
+        ``TrackerParams.detection_mute_low``; 1 while it is off)."""
         p = self.params
         self._detection_samples += 1
         self._detections += (f_s - self._detections) / p.detection_window
@@ -690,14 +707,21 @@ class OrientationTracker:
         self._detections_total += f_s
         self._detections_hand_total += f_hand
         if self._detection_samples < p.detection_window:
-            return None
+            return None, 1.0
         ratio = _concentration(self._detections_total) / max(_concentration(self._detections_hand_total), 1e-300)
+        mute = 1.0
+        if p.detection_mute_high <= 0.0:
+            pass
+        elif ratio <= p.detection_mute_low:
+            mute = 0.0
+        elif ratio < p.detection_mute_high:
+            mute = (ratio - p.detection_mute_low) / (p.detection_mute_high - p.detection_mute_low)
         scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
-        if not scale > 0.0:
-            return None
+        if not (p.detection_gain > 0.0 and scale > 0.0):
+            return None, mute
         hand = np.roll(self._contrast(self._detections_hand), -shift)
         d = self._contrast(self._detections) - np.maximum(hand, 0.0)
-        return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None)
+        return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
 
     def _contrast(self, h: np.ndarray) -> np.ndarray:
         """A histogram over its mean, less its blur by ``detection_blur``."""
