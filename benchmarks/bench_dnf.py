@@ -47,8 +47,8 @@ def _timing(quick: bool) -> str:
         ("DNF tracker, full, 2-D lateral by exact FFT (baseline)",
          lambda: _fft_tracker(OrientationTracker())),
         ("DNF tracker without correction (no 2-D field)", lambda: OrientationTracker(correct=False)),
-        ("DNF tracker, full, without the detection evidence (`detection_gain=0`)",
-         lambda: OrientationTracker(detection_gain=0.0)),
+        ("DNF tracker, full, without the detection evidence (`detection_gain=0, detection_mute_high=0`)",
+         lambda: OrientationTracker(detection_gain=0.0, detection_mute_high=0.0)),
         ("histogram", lambda: HistogramEstimator()),
         ("particle filter, 400 particles x 120 bins", lambda: ParticleOrientationEstimator(400, rng=0)),
     ]

@@ -84,7 +84,10 @@ over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes
 come from a corner's broad spread of normals. The pre-shape is withheld where the hand
 field is active, as the match drive is. It is off altogether while the run's hand-frame
 detections are the more concentrated, as a round object's are, since its normal points at
-the finger. It also waits for the first ``detection_window`` samples with contact.
+the finger. It also waits for the first ``detection_window`` samples with contact. Where that
+concentration ratio is lower still, as only a round object's is, the map field's whole
+drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
+scattered normals then write no stray side, and the ones written before fade.
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
