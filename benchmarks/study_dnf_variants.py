@@ -142,6 +142,37 @@ def factory(variant: str):
                     self._gain_scale = max(1.0, float(np.sqrt((w * w + s * s) / (w * w + ref * ref))))
 
         return _keeping_params(SpreadAll)
+    if variant.startswith("memcomp-"):
+        # memcomp-R-LO-HI: a remembered side (its sites within LO deg of its top) weaker
+        # than the strongest one remembered LO-HI deg away decays at R a sample more (a
+        # split or a stray beside a side)
+        # (``-w``: instead every site not written this sample with a remembered side, above
+        # the read-out's 0.4, LO-HI deg away: both halves of a split fade unless refreshed)
+        rate, lo, hi = (float(x) for x in variant.split("-")[1:4])
+        both = variant.endswith("-w")
+        unwritten = variant.endswith("-f")   # -f: the weaker side only while not written
+        from scipy.ndimage import maximum_filter1d
+
+        class MemComp(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                n = self.n_sites
+                a, b = int(round(lo * n / 360)), int(round(hi * n / 360))
+                size = b - a + 1
+                trace, trace_step = self.trace, self.trace.step
+
+                def step(f):
+                    P = trace_step(f)
+                    m = maximum_filter1d(P, size, mode="wrap", origin=-(size // 2))   # max over [i, i+size)
+                    near = np.maximum(np.roll(m, -a), np.roll(m, b))   # over [i+a, i+b] and [i-b, i-a]
+                    if both:
+                        P -= rate * P * (1.0 - f) * (near > 0.4)
+                        return P
+                    local = maximum_filter1d(P, 2 * a - 1, mode="wrap")         # the bump's own top
+                    P -= rate * P * (near > local) * ((1.0 - f) if unwritten else 1.0)
+                    return P
+                trace.step = step
+        return MemComp
     if variant.startswith("gated-decay-"):
         width, mult = (float(x) for x in variant.split("-")[2:4])
 

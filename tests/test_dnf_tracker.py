@@ -105,6 +105,50 @@ def test_reset_forgets_everything():
     assert tr._detections.max() == 0 and tr._detections_hand.max() == 0 and tr._detection_samples == 0
 
 
+def _two_bumps(tr, strong=1.0, weak=0.8, apart_deg=12.0):
+    """The memory holding a side at 90 deg and a weaker copy ``apart_deg`` beside it."""
+    x = np.degrees(tr.angles)
+    P = tr.trace.P
+    P[:] = strong * np.exp(-0.5 * ((x - 90.0) / 4.0) ** 2)
+    P[:] = np.maximum(P, weak * np.exp(-0.5 * ((x - 90.0 - apart_deg) / 4.0) ** 2))
+
+
+@pytest.mark.parametrize("split_decay, weak_kept", [(0.04, False), (0.0, True)])
+def test_a_split_fades_and_a_side_does_not(split_decay, weak_kept):
+    # a side remembered twice, 12 deg apart (the estimate moved between two writes), while
+    # the fingers touch elsewhere: the weaker copy fades within 30 samples, the stronger
+    # one only at the memory's own decay; with split_decay = 0 both stay sides
+    tr = OrientationTracker(split_decay=split_decay)
+    _two_bumps(tr)
+    for _ in range(30):
+        tr.step([np.radians(270.0)], 0.0)
+    i_strong, i_weak = np.argmin(np.abs(np.degrees(tr.angles) - 90.0)), np.argmin(np.abs(np.degrees(tr.angles) - 102.0))
+    assert tr.memory[i_strong] > 0.8
+    assert (tr.memory[i_weak] > 0.6) == weak_kept
+    near_pair = np.where(np.abs(np.degrees(tr.angles) - 96.0) < 30.0, tr.memory, 0.0)
+    assert count_surfaces(near_pair) == (2 if weak_kept else 1)
+    assert tr.correction == 0.0          # nothing to match: the estimate stayed put
+
+
+def test_the_uncorrected_memory_keeps_its_splits():
+    # seed 000's baseline: without a correction the split decay is off
+    tr = OrientationTracker(correct=False)
+    _two_bumps(tr)
+    for _ in range(30):
+        tr.step([np.radians(270.0)], 0.0)
+    assert tr.memory[np.argmin(np.abs(np.degrees(tr.angles) - 102.0))] > 0.6
+
+
+def test_sides_farther_apart_than_a_split_do_not_fade():
+    # two sides 30 deg apart (a 12-gon's spacing) are both kept at the memory's own decay
+    tr = OrientationTracker()
+    _two_bumps(tr, apart_deg=30.0)
+    for _ in range(30):
+        tr.step([np.radians(270.0)], 0.0)
+    i_weak = np.argmin(np.abs(np.degrees(tr.angles) - 120.0))
+    assert tr.memory[i_weak] > 0.7
+
+
 def test_seed_result_on_simulated_data(datasets):
     """Seed 000, Fig. 6/7: full model right on the n-gons and 0 on the round object; the
     histogram and the uncorrected memory clearly worse."""

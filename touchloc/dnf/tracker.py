@@ -102,6 +102,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 from scipy.special import gammaincinv
 
 from .._validate import as_bool, as_count, as_float, as_instance
@@ -369,6 +370,17 @@ class TrackerParams:
     #: decay where the map field is silent: a peak written while the estimate was still
     #: off fades within about 250 samples unless the side is touched there again
     memory_decay: float = 0.004
+    #: a split fades (an addition to seed 000): a remembered side weaker than another one
+    #: remembered ``split_near`` to ``split_far`` away (a side written twice while the
+    #: estimate drifted, or a stray beside a side) decays at ``split_decay`` a sample more
+    #: where the map field is silent. Sides of a polygon with up to 360 / 18 = 20 sides
+    #: lie farther apart (docs/dnf.md, "Eleventh round"). Only with ``correct``: without a
+    #: correction the estimate drifts on, and fading the older copies would let the map
+    #: slide with the drift (a window of the last turn) instead of failing as seed 000's
+    #: uncorrected memory does. ``split_decay = 0`` turns it off
+    split_decay: float = 0.04
+    split_near: float = np.radians(8.0)
+    split_far: float = np.radians(18.0)
     #: match field: broad copy of the detected sides plus the memory as pre-shape
     match: FieldParams = FieldParams(tau=1.0, h=-5.0, beta=4.0, c_exc=0.5, sigma_exc=np.radians(3.0),
                                      c_inh=0.2, sigma_inh=np.radians(15.0))
@@ -499,6 +511,11 @@ class OrientationTracker:
             raise ValidationError(f"need 0 <= detection_mute_low <= detection_mute_high <= 1e3 (or "
                                   f"detection_mute_high = 0: off), got {p.detection_mute_low!r} and "
                                   f"{p.detection_mute_high!r}")
+        if not (0.0 <= p.split_decay <= 1.0):
+            raise ValidationError(f"split_decay must be 0 to 1 per sample (0: off), got {p.split_decay!r}")
+        if not (0.0 < p.split_near < p.split_far < np.pi):
+            raise ValidationError(f"need 0 < split_near < split_far < pi rad, got {p.split_near!r} and "
+                                  f"{p.split_far!r}")
         self.params = p
         n = self.n_sites = int(p.n_sites)
         self.angles = site_angles(n)
@@ -517,6 +534,9 @@ class OrientationTracker:
         # signed deviation of each error-field site from the centre (site 0), rad
         self._dev = (self.angles + np.pi) % TWO_PI - np.pi
         self._window = np.exp(-0.5 * (self._dev / p.error_window) ** 2)
+        # a split's reach in whole sites: [near, far] on either side (near >= 1)
+        self._split_near = max(1, int(round(p.split_near * n / TWO_PI)))
+        self._split_far = max(self._split_near, int(round(p.split_far * n / TWO_PI)))
         self._f32 = np.float32
         self._leak = float(np.exp(-1.0 / p.input_window)) if p.input_window > 0 else 0.0
         self.correction = 0.0
@@ -674,6 +694,8 @@ class OrientationTracker:
             drive = drive + m
         f_m = self.map.step(drive if mute == 1.0 else mute * drive)
         self.trace.step(f_m)
+        if p.split_decay > 0 and p.correct:
+            self._fade_splits(f_m)
         if p.correct:
             k = self._f32(p.to_comparison)
             self.comparison.step(((f_s * k).astype(np.float32)[:, None],
@@ -725,6 +747,18 @@ class OrientationTracker:
         hand = np.roll(self._contrast(self._detections_hand), -shift)
         d = self._contrast(self._detections) - np.maximum(hand, 0.0)
         return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
+
+    def _fade_splits(self, f_m: np.ndarray) -> None:
+        """Let a remembered side weaker than one ``split_near`` to ``split_far`` away decay
+        at ``split_decay`` where the map field (output ``f_m``) is silent. A side's sites
+        within ``split_near`` of its top compare that top, so its own flanks do not fade."""
+        P = self.trace.P
+        a, b = self._split_near, self._split_far
+        size = b - a + 1
+        m = maximum_filter1d(P, size, mode="wrap", origin=-(size // 2))   # max over sites i .. i + size - 1
+        near = np.maximum(np.roll(m, -a), np.roll(m, b))                   # over i + a .. i + b and i - b .. i - a
+        top = maximum_filter1d(P, 2 * a - 1, mode="wrap")                  # over i - a + 1 .. i + a - 1
+        P -= self.params.split_decay * P * (1.0 - f_m) * (near > top)
 
     def _contrast(self, h: np.ndarray) -> np.ndarray:
         """A histogram over its mean, less its blur by ``detection_blur``."""
