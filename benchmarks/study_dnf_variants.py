@@ -4,14 +4,15 @@ Each variant changes what the tracker computes, not only a parameter, and runs o
 development seeds ``[11, cell, object, set]`` of all 13 cells of the robustness sweep and
 all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on data sets
 0-7: 10 cells, mean 0.969, 8-gon 0.907 before the ninth round, 11, 0.978, 0.934 after
-it, 11, 0.982, 0.935 since the tenth):
+it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 since the eleventh):
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence,
   since the tenth with the mute; the figures of the earlier rounds in docs/dnf.md are
   those of the tracker without them, ``set:detection_gain=0,detection_mute_high=0``, and
   the ninth round's those without the mute, ``set:detection_mute_high=0``; the
   ``evidence-*``, ``write-*`` and ``detect-*`` variants turn both off themselves, so they
-  give the figures of their rounds, while the others now run on top of them);
+  give the figures of their rounds, while the others now run on top of them; every
+  round before the eleventh ran without the split decay, ``set:split_decay=0``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -29,6 +30,12 @@ it, 11, 0.982, 0.935 since the tenth):
   visit is not lost between its writes;
 * ``map-tau-T``: the map field's time constant T samples (default 5), so that a stroke's
   few detections write sooner;
+* ``memcomp-R-LO-HI[-f|-w]``: a remembered side weaker than the strongest one LO-HI deg
+  away decays at R a sample more (its sites within LO deg of its top compare that top);
+  ``-f``: only where the map field is silent (the shipped ``split_decay``, since the
+  eleventh round; these variants replace it); ``-w``: instead every
+  site not written with a remembered side (above 0.4) LO-HI deg away, both halves of a
+  split alike (docs/dnf.md, "Eleventh round");
 * ``evidence-[MODE-]T-K-TH``: a leaky histogram of the sample codes in the object frame
   (time constant T samples, samples with contact only) and its contrast (the histogram
   over its mean, less its blur by 15 deg); K times the contrast's excess over TH
@@ -156,6 +163,8 @@ def factory(variant: str):
         class MemComp(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # the screening form of the shipped split decay: in its place
+                self.params = dataclasses.replace(self.params, split_decay=0.0)
                 n = self.n_sites
                 a, b = int(round(lo * n / 360)), int(round(hi * n / 360))
                 size = b - a + 1
@@ -334,7 +343,8 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
             super().__init__()
             # on the tracker as the seventh to ninth rounds screened it: without the detection
             # evidence and the mute it has shipped since (``detect-*`` is its screening form)
-            self.params = dataclasses.replace(self.params, detection_gain=0.0, detection_mute_high=0.0)
+            self.params = dataclasses.replace(self.params, detection_gain=0.0, detection_mute_high=0.0,
+                                              split_decay=0.0)
             n = self.n_sites
             g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
             self._blur = np.fft.rfft(g / g.sum())    # a mean: the contrast's background
