@@ -338,7 +338,7 @@ class TrackerParams:
     #: (ratios 0.16-0.52 on dense and seed-faithful development data after 150 samples,
     #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"). ``detection_gain = 0`` turns it off
     detection_window: float = 150.0
-    detection_gain: float = 3.0
+    detection_gain: float = 8.0
     detection_threshold: float = 0.4
     detection_blur: float = np.radians(15.0)
     detection_hold_low: float = 0.55
