@@ -4,7 +4,8 @@ Each variant changes what the tracker computes, not only a parameter, and runs o
 development seeds ``[11, cell, object, set]`` of all 13 cells of the robustness sweep and
 all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on data sets
 0-7: 10 cells, mean 0.969, 8-gon 0.907 before the ninth round, 11, 0.978, 0.934 after
-it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 since the eleventh):
+it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0.992,
+0.972 since the twelfth):
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence,
   since the tenth with the mute; the figures of the earlier rounds in docs/dnf.md are
@@ -12,7 +13,8 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 since the eleventh):
   the ninth round's those without the mute, ``set:detection_mute_high=0``; the
   ``evidence-*``, ``write-*`` and ``detect-*`` variants turn both off themselves, so they
   give the figures of their rounds, while the others now run on top of them; every
-  round before the eleventh ran without the split decay, ``set:split_decay=0``);
+  round before the eleventh ran without the split decay, ``set:split_decay=0``, and
+  every round before the twelfth with ``detection_gain=3``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
