@@ -735,12 +735,9 @@ class OrientationTracker:
             return None, 1.0
         ratio = _concentration(self._detections_total) / max(_concentration(self._detections_hand_total), 1e-300)
         mute = 1.0
-        if p.detection_mute_high <= 0.0:
-            pass
-        elif ratio <= p.detection_mute_low:
-            mute = 0.0
-        elif ratio < p.detection_mute_high:
-            mute = (ratio - p.detection_mute_low) / (p.detection_mute_high - p.detection_mute_low)
+        if ratio < p.detection_mute_high:   # never with detection_mute_high = 0 (off): ratio >= 0
+            low = p.detection_mute_low
+            mute = 0.0 if ratio <= low else (ratio - low) / (p.detection_mute_high - low)
         scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
         if not (p.detection_gain > 0.0 and scale > 0.0):
             return None, mute
