@@ -89,7 +89,7 @@ def test_a_round_object_at_6_deg_writes_no_stray_side():
 
 def test_splits_fade_on_the_slip_cells_8gons():
     # 3 deg of unobserved slip per regrasp: the estimate jumps, a side is written a second
-    # time beside itself, and the memory used to keep both copies for about 200 samples (on
+    # time beside itself, and the memory used to keep both copies for about 230 samples (on
     # these eight 8-gons 0.76 right with split_decay = 0, 0.06-1.0 a set). The weaker copy
     # now fades while the map field is silent there (0.88, 0.21-1.0)
     on, off = _on_off(12, 8, range(8), split_decay=0.0)
