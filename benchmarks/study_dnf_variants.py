@@ -5,16 +5,20 @@ development seeds ``[11, cell, object, set]`` of all 13 cells of the robustness 
 all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on data sets
 0-7: 10 cells, mean 0.969, 8-gon 0.907 before the ninth round, 11, 0.978, 0.934 after
 it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0.992,
-0.972 since the twelfth):
+0.972 after the twelfth, 12, 0.993, 0.976 since the thirteenth):
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence,
   since the tenth with the mute; the figures of the earlier rounds in docs/dnf.md are
   those of the tracker without them, ``set:detection_gain=0,detection_mute_high=0``, and
   the ninth round's those without the mute, ``set:detection_mute_high=0``; the
-  ``evidence-*``, ``write-*`` and ``detect-*`` variants turn both off themselves, so they
-  give the figures of their rounds, while the others now run on top of them; every
+  ``evidence-*``, ``write-*`` and ``detect-*`` variants turn both off themselves (and the
+  split decay, and set ``rate_prior=1``), while the others now run on top of them. They do
+  not repeat their rounds' figures exactly: ``evidence-gwh-150-3-0.4`` scored 8 cells, mean
+  0.982, 8-gon 0.948 in the seventh round and scores 9, 0.974, 0.934 on the same data sets
+  since the eleventh round's commit; every
   round before the eleventh ran without the split decay, ``set:split_decay=0``, and
-  every round before the twelfth with ``detection_gain=3``);
+  every round before the twelfth with ``detection_gain=3``, and every round before the
+  thirteenth with ``rate_prior=1``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -344,9 +348,10 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
         def __init__(self):
             super().__init__()
             # on the tracker as the seventh to ninth rounds screened it: without the detection
-            # evidence and the mute it has shipped since (``detect-*`` is its screening form)
+            # evidence and the mute it has shipped since (``detect-*`` is its screening form),
+            # and with the rate prior of its time
             self.params = dataclasses.replace(self.params, detection_gain=0.0, detection_mute_high=0.0,
-                                              split_decay=0.0)
+                                              split_decay=0.0, rate_prior=1.0)
             n = self.n_sites
             g = np.exp(-0.5 * (periodic_distance(n) / np.radians(blur)) ** 2)
             self._blur = np.fft.rfft(g / g.sum())    # a mean: the contrast's background
