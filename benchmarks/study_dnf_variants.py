@@ -59,6 +59,10 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
   the detections' hand-frame histogram is the more concentrated (its fullest tenth of
   sites holding more of its mass than the object frame's does, by a ratio below 0.45 -
   0.7), as a round object's is, and ramped in over the first T samples with contact;
+* ``evmatch-K-TH``: K times the detection histogram's contrast in excess of TH (the
+  shipped histogram, object frame) is added to the match field's input from the tenth
+  sample with contact on, so that the read-out can pair detections with sides seen often
+  before any is remembered (docs/dnf.md, "Thirteenth round");
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -261,6 +265,24 @@ def factory(variant: str):
         tau = float(variant.split("-")[2])
         default = TrackerParams().map
         return lambda: OrientationTracker(map=dataclasses.replace(default, tau=tau))
+    if variant.startswith("evmatch-"):
+        # the detection histogram's contrast also pre-shapes the match field, so that the
+        # read-out pairs detections with sides seen often before any is remembered
+        k, th = (float(x) for x in variant.split("-")[1:3])
+
+        class EvMatch(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                step = self.match.step
+
+                def match_step(u):
+                    if self._detection_samples >= 10:
+                        u = u + k * np.clip(self._contrast(self._detections) - th, 0.0, None)
+                    return step(u)
+
+                self.match.step = match_step
+
+        return EvMatch
     raise SystemExit(f"unknown variant {variant!r}")
 
 
