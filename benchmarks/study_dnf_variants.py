@@ -63,6 +63,9 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
   shipped histogram, object frame) is added to the match field's input from the tenth
   sample with contact on, so that the read-out can pair detections with sides seen often
   before any is remembered (docs/dnf.md, "Thirteenth round");
+* ``edgedrop-K``: a contact whose normals spread more than K times the estimated noise
+  (as an edge's do under the curved pad) is left out of its sample (docs/dnf.md,
+  "Thirteenth round");
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -283,6 +286,26 @@ def factory(variant: str):
                 self.match.step = match_step
 
         return EvMatch
+    if variant.startswith("edgedrop-"):
+        # a contact whose normals spread more than K times the estimated noise (an edge
+        # under a curved pad) is left out of the sample
+        kk = float(variant.split("-")[1])
+        from touchloc.dnf.tracker import _contacts
+
+        class EdgeDrop(OrientationTracker):
+            def _step(self, a):
+                if a.size >= 2:
+                    s_ = np.sort(np.mod(a, 2 * np.pi))
+                    sp, mu, _ = _contacts(a, self.params.contact_gap)
+                    lim = kk * max(self._noise, self.params.noise_ref)
+                    for v, m in zip(sp, mu):
+                        if v > lim:
+                            d = np.abs((s_ - m + np.pi) % (2 * np.pi) - np.pi)
+                            s_ = s_[d > 2.5 * v]
+                    a = s_
+                super()._step(a)
+
+        return EdgeDrop
     raise SystemExit(f"unknown variant {variant!r}")
 
 
