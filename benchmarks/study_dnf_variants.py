@@ -195,6 +195,46 @@ def factory(variant: str):
                     return P
                 trace.step = step
         return MemComp
+    if variant.startswith("memblur-"):
+        # memblur-S: the memory trace is written from the map field's output blurred by a
+        # Gaussian of S deg (unit peak kept where the output is a plateau wider than it)
+        S = float(variant.split("-")[1])
+        from touchloc.dnf.fields import circular_convolve, periodic_distance
+
+        class MemBlur(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                g = np.exp(-0.5 * (periodic_distance(self.n_sites) / np.radians(S)) ** 2)
+                k = np.fft.rfft(g / g.sum())
+                trace_step = self.trace.step
+                n = self.n_sites
+                self.trace.step = lambda f: trace_step(np.clip(circular_convolve(f, k, n), 0.0, 1.0))
+        return MemBlur
+    if variant.startswith("evhold-"):
+        # evhold-K: the memory decays less where the detection evidence supports a side: by
+        # 1 - min(K x the contrast's excess, 1), the excess that pre-shapes the map field
+        K = float(variant.split("-")[1])
+
+        class EvHold(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self._hold = np.zeros(self.n_sites)
+                trace, hold = self.trace, self._hold
+
+                def step(f):
+                    P = trace.P
+                    P += (trace.dt / trace.tau) * (trace.build * (f - P) * f - trace.decay * P * (1.0 - f) * (1.0 - hold))
+                    return P
+                trace.step = step
+
+            def _detection_evidence(self, f_s, f_hand, shift):
+                pre, mute = super()._detection_evidence(f_s, f_hand, shift)
+                if pre is None:
+                    self._hold[:] = 0.0
+                else:
+                    np.minimum(pre * (K / self.params.detection_gain), 1.0, out=self._hold)
+                return pre, mute
+        return EvHold
     if variant.startswith("gated-decay-"):
         width, mult = (float(x) for x in variant.split("-")[2:4])
 

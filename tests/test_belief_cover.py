@@ -258,7 +258,16 @@ def test_wide_scales_are_scored_on_the_bound_table(mug):
     full = model.log_likelihood(X, contacts, temperature=tau)
     on, off = ScalingSeries(model, rng=0), ScalingSeries(model, rng=0, bound_scales=None)
     assert on.bound_scales == 2.0
-    np.testing.assert_array_equal(on._annealed_loglik(X, contacts, tau, delta=2.0 * slack), table)
+    got = on._annealed_loglik(X, contacts, tau, delta=2.0 * slack)
+    # the prune keeps the same particles with the same values; the others stopped their
+    # lookups once sure to be dropped: still below the threshold, above their full table value
+    keep = table >= table.max() + np.log(on.prune_ratio)
+    assert 0 < keep.sum() < len(X) // 2
+    np.testing.assert_array_equal(got[keep], table[keep])
+    assert np.all(got[~keep] < got.max() + np.log(on.prune_ratio)) and np.all(got >= table)
+    assert np.any(got[~keep] > table[~keep] + 1.0)   # some lookups were skipped
+    np.testing.assert_array_equal(on._prune(X, got), on._prune(X, table))
+    np.testing.assert_array_equal(on._annealed_loglik(X[:40], contacts, tau, delta=2.0 * slack), table[:40])
     assert np.all(table >= full - 1e-9) and np.any(table > full + 1.0)
     for ss, delta, prune in ((on, 1.9 * slack, False), (on, 1.9 * slack, True), (off, 10 * slack, True),
                              (on, 10 * slack, False)):

@@ -831,6 +831,33 @@ def test_costs_stopped_by_their_bounds_still_reach_the_budget(objects, rng):
         assert np.count_nonzero(got[~done] != lower[~done]) < np.count_nonzero(plain[~done])
 
 
+@pytest.mark.parametrize("n_poses", [400, 20])   # the parallel kernel and the one-thread one
+def test_bound_lookups_stop_once_their_sum_reaches_the_limit(objects, rng, n_poses):
+    """Taken in a given order, a pose's lookups stop once their sum reaches the limit: a
+    row that stays below it is the full row bit for bit; a stopped row sums to at least
+    the limit and holds each pair's bound or 0 (not looked up)."""
+    obj = objects["mug"]
+    model = ProximityModel(obj, 0.002, np.deg2rad(5))
+    true = random_poses(rng, 1)[0]
+    contacts = noisy_contacts(obj, rng, 12, true, nor_noise=0.05)
+    poses = random_poses(rng, n_poses, half=0.05) @ true
+    full = model._lower_costs(poses, contacts)
+    limit = float(np.quantile(full.sum(axis=1), 0.4)) * (1 + 1e-9)
+    order = rng.permutation(len(contacts))
+    got = model._lower_costs_until(poses, contacts, limit, order)
+    below = full.sum(axis=1) < limit
+    assert 0 < below.sum() < n_poses
+    np.testing.assert_array_equal(got[below], full[below])
+    assert np.all(got[~below].sum(axis=1) >= limit * (1 - 1e-12))
+    assert np.all((got == full) | (got == 0.0))
+    # the pairs looked up are those whose predecessors in the order sum to less than the limit
+    ordered = full[:, order]
+    before = np.concatenate([np.zeros((len(poses), 1)), np.cumsum(ordered, axis=1)[:, :-1]], axis=1)
+    np.testing.assert_array_equal(got[:, order], np.where(before < limit, ordered, 0.0))
+    assert np.count_nonzero(got[~below]) < np.count_nonzero(full[~below])
+    np.testing.assert_array_equal(model._lower_costs_until(poses, contacts, np.inf, order), full)
+
+
 def test_kernels_compile_one_signature_whatever_the_inputs_flags_and_layout(objects, rng):
     # numba types an array by its layout and its read-only flag: a frozen Contacts, a
     # Fortran-ordered or strided batch or a read-only one must not compile a kernel a second

@@ -36,6 +36,9 @@ class ScaleStep:
     seconds: float
 
 
+#: Particles whose full bound sums set the prune's limit at a scale scored on the table.
+_BOUND_PROBE = 32
+
 #: The "auto" schedule's annealed posterior is no narrower than Alg. 1's at this many contacts.
 ANNEAL_CONTACTS = 15
 
@@ -604,9 +607,12 @@ class ScalingSeries:
         cost from above. Every particle then gets its contacts one at a time and stops as
         soon as its costs so far plus the bounds of its remaining contacts reach that
         threshold (at once, when the bounds alone do); each nearest-face search stops as
-        soon as no face can be within what the budget leaves it. The prune keeps exactly
-        the particles it keeps on complete evaluations, with the same weights; the
-        dropped ones get a value above the threshold and below their full value.
+        soon as no face can be within what the budget leaves it. At the scales scored on
+        the table the same holds for the bounds: the best bound sum of 32 particles spread
+        over the batch sets the threshold, and each particle's lookups stop once their sum
+        reaches it. The prune keeps exactly the particles it keeps on complete evaluations,
+        with the same weights; the dropped ones get a value above the threshold and below
+        their full value.
         """
         model = self.model
         K, N = len(contacts), len(X)
@@ -614,7 +620,16 @@ class ScalingSeries:
             return finite_loglik(model.log_likelihood(X, contacts, temperature=tau))
         # the particles are this estimator's own (4, 4) rigid poses: no re-validation
         if prune and self.bound_scales is not None and delta >= self.bound_scales * model._bound_slack(contacts):
-            return finite_loglik(-0.5 * model._lower_costs(X, contacts).sum(axis=1) / tau)
+            if self.prune != "threshold" or N < 2 * _BOUND_PROBE:
+                return finite_loglik(-0.5 * model._lower_costs(X, contacts).sum(axis=1) / tau)
+            # the bounds' sums of an even subsample bound the best sum from above; each
+            # particle then takes its contacts, those with the subsample's largest bounds
+            # first, until its sum is sure to be pruned
+            probe = model._lower_costs(X[:: N // _BOUND_PROBE][:_BOUND_PROBE], contacts)
+            limit = float(probe.sum(axis=1).min()) + 2.0 * tau * np.log(1.0 / self.prune_ratio)
+            limit += 1e-9 * (1.0 + limit)
+            order = np.argsort(-probe.mean(axis=0), kind="stable")
+            return finite_loglik(-0.5 * model._lower_costs_until(X, contacts, limit, order).sum(axis=1) / tau)
         method = self._method(model, contacts)
         costs = model._budget_costs
         if not prune or self.prune != "threshold" or N < 64:

@@ -36,7 +36,7 @@ from .._util import progress
 from ._kernels import _SERIAL as _SERIAL_PIPELINE
 from ._kernels import PARALLEL_MIN, kernel_array, object_frame, query_joint
 
-__all__ = ["CostBound", "build_cost_bound", "lower_costs"]
+__all__ = ["CostBound", "build_cost_bound", "lower_costs", "lower_costs_until"]
 
 _NB = dict(cache=numba_cache_enabled(__file__), nogil=True)
 #: the one-thread kernel through numba's parallel pipeline, as the likelihood's (see
@@ -193,6 +193,54 @@ def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf) -> np.nda
     kernel = _lower_costs if len(poses) * len(P) >= PARALLEL_MIN else _lower_costs_serial
     return kernel(poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
                   bound.box_lo, bound.box_hi, float(bound.w), BINS)
+
+
+@nb.njit(inline="always", **_NB)
+def _bound_row_until(i, poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order, limit, out):
+    total = 0.0
+    for j in range(order.shape[0]):
+        k = order[j]
+        if total >= limit:
+            out[i, k] = 0.0
+            continue
+        px, py, pz, nx, ny, nz = object_frame(poses, i, P, N, k, use_n)
+        v = min(_bound_one(px, py, pz, nx, ny, nz, use_n, lo, h, 1.0 / h, shape, root, dirs, box_lo, box_hi, w, b),
+                cap)
+        out[i, k] = v
+        total += v
+
+
+@nb.njit(parallel=True, **_NB)
+def _lower_costs_until(poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order, limit):
+    out = np.empty((poses.shape[0], P.shape[0]))
+    for i in nb.prange(poses.shape[0]):
+        _bound_row_until(i, poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order, limit,
+                         out)
+    return out
+
+
+@nb.njit(**_SERIAL)
+def _lower_costs_until_serial(poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order,
+                              limit):
+    out = np.empty((poses.shape[0], P.shape[0]))
+    for i in range(poses.shape[0]):
+        _bound_row_until(i, poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order, limit,
+                         out)
+    return out
+
+
+def lower_costs_until(bound: CostBound, poses, P, N, limit: float, order, *, cap: float = np.inf) -> np.ndarray:
+    """:func:`lower_costs`, each pose's contacts taken in ``order`` (K,) until their bounds
+    sum to ``limit`` (m^2) or more; the pairs not reached hold 0. A row whose sum stays
+    below ``limit`` is the row :func:`lower_costs` gives, bit for bit."""
+    poses = kernel_array(poses)
+    P = kernel_array(P).reshape(-1, 3)
+    use_n = N is not None and bound.w > 0
+    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    kernel = _lower_costs_until if len(poses) * len(P) >= PARALLEL_MIN else _lower_costs_until_serial
+    return kernel(poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
+                  bound.box_lo, bound.box_hi, float(bound.w), BINS, order, float(limit))
 
 
 def build_cost_bound(tree, box_lo, box_hi, w: float) -> CostBound:

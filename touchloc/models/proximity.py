@@ -245,6 +245,18 @@ class ProximityModel(MeasurementModel):
                                     cap=self.cost_cap * s2)
         return lower / s2
 
+    def _lower_costs_until(self, poses, contacts, limit: float, order):
+        """:meth:`_lower_costs`, each pose's contacts taken in ``order`` until their bounds
+        sum to ``limit`` (d_M^2) or more; the pairs not reached hold 0, and a row whose sum
+        stays below ``limit`` is the row :meth:`_lower_costs` gives, bit for bit."""
+        use_n = self._uses_normals(contacts)
+        w = self._weight(use_n)
+        s2 = self.sigma_pos**2
+        lower = _bounds.lower_costs_until(self._bound(w), poses, contacts.points,
+                                          contacts.normals if use_n else None, limit * s2, order,
+                                          cap=self.cost_cap * s2)
+        return lower / s2
+
     def query_costs(self, points, normals=None, *, method: str | None = None) -> np.ndarray:
         """d_M^2 of object-frame measurements (M,) for the object at the identity pose.
 
