@@ -66,6 +66,16 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
 * ``edgedrop-K``: a contact whose normals spread more than K times the estimated noise
   (as an edge's do under the curved pad) is left out of its sample (docs/dnf.md,
   "Thirteenth round");
+* ``evhold-K``: the memory decays less where the detection evidence supports a side, by
+  1 - min(K x the contrast's excess, 1) (the excess that pre-shapes the map field), so
+  that a side not landed on flat for a turn is held (docs/dnf.md, "Fourteenth round");
+* ``slope-L``: the rate is the slope of the total correction against the odometry, with
+  an intercept, over the read-outs so far (each weighing as the odometry turned since the
+  one before), pulled to ``rate_prior_mean`` with weight L rad^3: a frame offset left by
+  the first turn's drift no longer biases the rate (docs/dnf.md, "Fourteenth round");
+* ``memblur-S``: the memory trace is written from the map field's output blurred by S deg,
+  so that a side's peak is wider and survives the count's 3 deg smoothing at a lower
+  height (docs/dnf.md, "Fourteenth round");
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -195,6 +205,30 @@ def factory(variant: str):
                     return P
                 trace.step = step
         return MemComp
+    if variant.startswith("slope-"):
+        # slope-L: the rate is the slope of the total correction against the odometry, with
+        # an intercept, over the read-outs so far, each weighing as the odometry turned since
+        # the one before; the prior pulls the slope to rate_prior_mean with weight L (rad^3)
+        L = float(variant.split("-")[1])
+
+        class Slope(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self._sums = np.zeros(5)   # sum w, w D, w c, w D^2, w D c
+                self._last_D = 0.0
+
+            def _step(self, a):
+                super()._step(a)
+                if self.last_error != 0.0 and self._first_odo is not None:
+                    D, c = self.odometry - self._first_odo, self.correction
+                    w = max(abs(D - self._last_D), 1e-3)
+                    self._last_D = D
+                    self._sums += w * np.array([1.0, D, c, D * D, D * c])
+                    sw, sD, sc, sDD, sDc = self._sums
+                    Sxx, Sxy = sDD - sD * sD / sw, sDc - sD * sc / sw
+                    m0 = self.params.rate_prior_mean
+                    self._rate = min(max((Sxy + L * m0) / (Sxx + L), -0.5), 0.5)
+        return Slope
     if variant.startswith("memblur-"):
         # memblur-S: the memory trace is written from the map field's output blurred by a
         # Gaussian of S deg (unit peak kept where the output is a plateau wider than it)
