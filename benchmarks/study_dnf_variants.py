@@ -73,6 +73,9 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
   an intercept, over the read-outs so far (each weighing as the odometry turned since the
   one before), pulled to ``rate_prior_mean`` with weight L rad^3: a frame offset left by
   the first turn's drift no longer biases the rate (docs/dnf.md, "Fourteenth round");
+* ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
+  output summed there over the run: sides written often last longer between their writes
+  (docs/dnf.md, "Fourteenth round");
 * ``memblur-S``: the memory trace is written from the map field's output blurred by S deg,
   so that a side's peak is wider and survives the count's 3 deg smoothing at a lower
   height (docs/dnf.md, "Fourteenth round");
@@ -205,6 +208,25 @@ def factory(variant: str):
                     return P
                 trace.step = step
         return MemComp
+    if variant.startswith("consol-"):
+        # consol-W0: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map
+        # field's output summed there over the run (samples written): sides written often
+        # are kept longer between their writes
+        W0 = float(variant.split("-")[1])
+
+        class Consol(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self._W = np.zeros(self.n_sites)
+                trace, W = self.trace, self._W
+
+                def step(f):
+                    np.add(W, f, out=W)
+                    P = trace.P
+                    P += (trace.dt / trace.tau) * (trace.build * (f - P) * f - trace.decay * P * (1.0 - f) / (1.0 + W / W0))
+                    return P
+                trace.step = step
+        return Consol
     if variant.startswith("slope-"):
         # slope-L: the rate is the slope of the total correction against the odometry, with
         # an intercept, over the read-outs so far, each weighing as the odometry turned since
