@@ -1,6 +1,8 @@
 """The even density cover of Scaling Series: fast ball counts against a KD-tree, and the
 cover's distribution against the reference implementation."""
 
+import itertools
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -226,9 +228,12 @@ def test_annealed_likelihood_prunes_exactly_like_a_full_evaluation(mug, k):
     X = region.perturb(np.repeat(true[None], 5000, axis=0), 0.02, rng=rng, ball=False)
     model = ProximityModel(mug, 0.002, np.deg2rad(5))
     ss = ScalingSeries(model, rng=0)
-    for tau in (1.0, 30.0, 1000.0):
+    slack = model._bound_slack(contacts)
+    # with the table's bounds (a scale between one and two slacks wide) and without them
+    # (narrower than the slack)
+    for tau, delta in itertools.product((1.0, 30.0, 1000.0), (1.5 * slack, 0.5 * slack)):
         full = model.log_likelihood(X, contacts, temperature=tau)
-        part = ss._annealed_loglik(X, contacts, tau)
+        part = ss._annealed_loglik(X, contacts, tau, delta=delta)
         assert np.all(part >= full - 1e-9)  # a partial cost never exceeds the full one
         kept_full = ss._prune(X, full)
         kept_part = ss._prune(X, part)

@@ -607,7 +607,9 @@ class ScalingSeries:
         cost from above. Every particle then gets its contacts one at a time and stops as
         soon as its costs so far plus the bounds of its remaining contacts reach that
         threshold (at once, when the bounds alone do); each nearest-face search stops as
-        soon as no face can be within what the budget leaves it. At the scales scored on
+        soon as no face can be within what the budget leaves it. At scales narrower than
+        the table's slack the bounds are nearly all 0 and are skipped: 32 particles spread
+        over the batch bound the best cost, and a particle stops on its costs alone. At the scales scored on
         the table the same holds for the bounds: the best bound sum of 32 particles spread
         over the batch sets the threshold, and each particle's lookups stop once their sum
         reaches it. The prune keeps exactly the particles it keeps on complete evaluations,
@@ -635,9 +637,17 @@ class ScalingSeries:
         if not prune or self.prune != "threshold" or N < 64:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
         # lower bounds of every pair from a table (a lookup each): the particles best by
-        # them, evaluated completely, bound the best cost from above
-        lower = model._lower_costs(X, contacts)
-        best = np.argsort(lower.sum(axis=1))[:32]
+        # them, evaluated completely, bound the best cost from above (32 spread over the
+        # batch where the bounds are skipped)
+        if delta < model._bound_slack(contacts):
+            # a bound is the cost dilated by up to twice the slack: at a scale narrower than
+            # the slack the particles' contacts lie within it of the surface, and their bounds
+            # are nearly all 0 (they would stop next to no particle)
+            lower = None
+            best = np.arange(0, N, max(1, N // 32))[:32]
+        else:
+            lower = model._lower_costs(X, contacts)
+            best = np.argsort(lower.sum(axis=1))[:32]
         upper = float(np.min(costs(X[best], contacts, method)[0].sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
         # a stopped particle's value reaches the limit: with this margin, a value strictly
