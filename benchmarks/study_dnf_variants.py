@@ -213,31 +213,11 @@ def factory(variant: str):
     if variant.startswith("evstart-"):
         # evstart-N: the detection evidence (pre-shape and mute) starts after N samples with
         # contact instead of a whole window (the histograms' window is unchanged)
-        start = int(variant.split("-")[1])
-        from touchloc.dnf.tracker import _concentration
+        start = float(variant.split("-")[1])
 
         class EvStart(OrientationTracker):
-            def _detection_evidence(self, f_s, f_hand, shift):
-                p = self.params
-                if self._detection_samples + 1 >= p.detection_window or self._detection_samples + 1 < start:
-                    return super()._detection_evidence(f_s, f_hand, shift)
-                # between start and the window: the same, with the window's wait skipped
-                self._detection_samples += 1
-                self._detections += (f_s - self._detections) / p.detection_window
-                self._detections_hand += (f_hand - self._detections_hand) / p.detection_window
-                self._detections_total += f_s
-                self._detections_hand_total += f_hand
-                ratio = _concentration(self._detections_total) / max(_concentration(self._detections_hand_total), 1e-300)
-                mute = 1.0
-                if ratio < p.detection_mute_high:
-                    low = p.detection_mute_low
-                    mute = 0.0 if ratio <= low else (ratio - low) / (p.detection_mute_high - low)
-                scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
-                if not (p.detection_gain > 0.0 and scale > 0.0):
-                    return None, mute
-                hand = np.roll(self._contrast(self._detections_hand), -shift)
-                d = self._contrast(self._detections) - np.maximum(hand, 0.0)
-                return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
+            def _evidence_start(self):
+                return min(start, self.params.detection_window)
         return EvStart
     if variant.startswith("consol-"):
         # consol-W0: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map
