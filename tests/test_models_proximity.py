@@ -844,7 +844,7 @@ def test_bound_lookups_stop_once_their_sum_reaches_the_limit(objects, rng, n_pos
     full = model._lower_costs(poses, contacts)
     limit = float(np.quantile(full.sum(axis=1), 0.4)) * (1 + 1e-9)
     order = rng.permutation(len(contacts))
-    got = model._lower_costs_until(poses, contacts, limit, order)
+    got = model._lower_costs(poses, contacts, limit=limit, order=order)
     below = full.sum(axis=1) < limit
     assert 0 < below.sum() < n_poses
     np.testing.assert_array_equal(got[below], full[below])
@@ -855,7 +855,7 @@ def test_bound_lookups_stop_once_their_sum_reaches_the_limit(objects, rng, n_pos
     before = np.concatenate([np.zeros((len(poses), 1)), np.cumsum(ordered, axis=1)[:, :-1]], axis=1)
     np.testing.assert_array_equal(got[:, order], np.where(before < limit, ordered, 0.0))
     assert np.count_nonzero(got[~below]) < np.count_nonzero(full[~below])
-    np.testing.assert_array_equal(model._lower_costs_until(poses, contacts, np.inf, order), full)
+    np.testing.assert_array_equal(model._lower_costs(poses, contacts, limit=np.inf, order=order), full)
 
 
 def test_kernels_compile_one_signature_whatever_the_inputs_flags_and_layout(objects, rng):

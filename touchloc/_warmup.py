@@ -221,7 +221,7 @@ def _warm(obj, full, forms=PARTS):
             model.contact_costs(poses, Contacts(P, N), method=method)
             # Scaling Series' pruned pass: the bounds, then costs that stop on them
             lower = model._lower_costs(poses, Contacts(P, N))
-            model._lower_costs_until(poses, Contacts(P, N), 1.0, np.arange(len(P)))
+            model._lower_costs(poses, Contacts(P, N), limit=1.0)
             model._budget_costs(poses, Contacts(P, N), method, budget=np.ones(len(poses)), lower=lower)
     if full:
         model.query_costs(P, None, method="fast")  # position-only grid lists

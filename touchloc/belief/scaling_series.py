@@ -36,7 +36,8 @@ class ScaleStep:
     seconds: float
 
 
-#: Particles whose full bound sums set the prune's limit at a scale scored on the table.
+#: Particles evaluated completely (or looked up completely, at a scale scored on the table)
+#: whose best sum bounds the best particle's from above, for the prune's threshold.
 _BOUND_PROBE = 32
 
 #: The "auto" schedule's annealed posterior is no narrower than Alg. 1's at this many contacts.
@@ -609,9 +610,9 @@ class ScalingSeries:
         threshold (at once, when the bounds alone do); each nearest-face search stops as
         soon as no face can be within what the budget leaves it. At scales narrower than
         the table's slack the bounds are nearly all 0 and are skipped: 32 particles spread
-        over the batch bound the best cost, and a particle stops on its costs alone. At the scales scored on
-        the table the same holds for the bounds: the best bound sum of 32 particles spread
-        over the batch sets the threshold, and each particle's lookups stop once their sum
+        over the batch bound the best cost, and a particle stops on its costs alone. At the
+        scales scored on the table alone, the best bound sum of 32 particles spread over
+        the batch sets the threshold, and each particle's lookups stop once their sum
         reaches it. The prune keeps exactly the particles it keeps on complete evaluations,
         with the same weights; the dropped ones get a value above the threshold and below
         their full value.
@@ -631,10 +632,10 @@ class ScalingSeries:
             limit = float(probe.sum(axis=1).min()) + 2.0 * tau * np.log(1.0 / self.prune_ratio)
             limit += 1e-9 * (1.0 + limit)
             order = np.argsort(-probe.mean(axis=0), kind="stable")
-            return finite_loglik(-0.5 * model._lower_costs_until(X, contacts, limit, order).sum(axis=1) / tau)
+            return finite_loglik(-0.5 * model._lower_costs(X, contacts, limit, order).sum(axis=1) / tau)
         method = self._method(model, contacts)
         costs = model._budget_costs
-        if not prune or self.prune != "threshold" or N < 64:
+        if not prune or self.prune != "threshold" or N < 2 * _BOUND_PROBE:
             return finite_loglik(-0.5 * costs(X, contacts, method)[0].sum(axis=1) / tau)
         # lower bounds of every pair from a table (a lookup each): the particles best by
         # them, evaluated completely, bound the best cost from above (32 spread over the
@@ -644,10 +645,10 @@ class ScalingSeries:
             # the slack the particles' contacts lie within it of the surface, and their bounds
             # are nearly all 0 (they would stop next to no particle)
             lower = None
-            best = np.arange(0, N, max(1, N // 32))[:32]
+            best = np.arange(0, N, N // _BOUND_PROBE)[:_BOUND_PROBE]
         else:
             lower = model._lower_costs(X, contacts)
-            best = np.argsort(lower.sum(axis=1))[:32]
+            best = np.argsort(lower.sum(axis=1))[:_BOUND_PROBE]
         upper = float(np.min(costs(X[best], contacts, method)[0].sum(axis=1)))
         limit = upper + 2.0 * tau * np.log(1.0 / self.prune_ratio)
         # a stopped particle's value reaches the limit: with this margin, a value strictly

@@ -36,7 +36,7 @@ from .._util import progress
 from ._kernels import _SERIAL as _SERIAL_PIPELINE
 from ._kernels import PARALLEL_MIN, kernel_array, object_frame, query_joint
 
-__all__ = ["CostBound", "build_cost_bound", "lower_costs", "lower_costs_until"]
+__all__ = ["CostBound", "build_cost_bound", "lower_costs"]
 
 _NB = dict(cache=numba_cache_enabled(__file__), nogil=True)
 #: the one-thread kernel through numba's parallel pipeline, as the likelihood's (see
@@ -183,18 +183,6 @@ def _lower_costs_serial(poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_l
     return out
 
 
-def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf) -> np.ndarray:
-    """(n, K) lower bounds (m^2, each at most ``cap``) of the joint costs of world contacts
-    ``P`` (K, 3), ``N`` (K, 3) or None, seen from each pose (n, 4, 4; trusted)."""
-    poses = kernel_array(poses)
-    P = kernel_array(P).reshape(-1, 3)
-    use_n = N is not None and bound.w > 0
-    Nn = kernel_array(N if use_n else np.zeros((1, 3)))
-    kernel = _lower_costs if len(poses) * len(P) >= PARALLEL_MIN else _lower_costs_serial
-    return kernel(poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
-                  bound.box_lo, bound.box_hi, float(bound.w), BINS)
-
-
 @nb.njit(inline="always", **_NB)
 def _bound_row_until(i, poses, P, N, use_n, cap, lo, h, shape, root, dirs, box_lo, box_hi, w, b, order, limit, out):
     total = 0.0
@@ -229,18 +217,25 @@ def _lower_costs_until_serial(poses, P, N, use_n, cap, lo, h, shape, root, dirs,
     return out
 
 
-def lower_costs_until(bound: CostBound, poses, P, N, limit: float, order, *, cap: float = np.inf) -> np.ndarray:
-    """:func:`lower_costs`, each pose's contacts taken in ``order`` (K,) until their bounds
-    sum to ``limit`` (m^2) or more; the pairs not reached hold 0. A row whose sum stays
-    below ``limit`` is the row :func:`lower_costs` gives, bit for bit."""
+def lower_costs(bound: CostBound, poses, P, N, *, cap: float = np.inf, limit: float | None = None,
+                order=None) -> np.ndarray:
+    """(n, K) lower bounds (m^2, each at most ``cap``) of the joint costs of world contacts
+    ``P`` (K, 3), ``N`` (K, 3) or None, seen from each pose (n, 4, 4; trusted).
+
+    With ``limit`` (m^2), each pose takes its contacts in ``order`` (K,) (default: as given)
+    until their bounds sum to ``limit`` or more; the pairs not reached hold 0, and a row
+    whose sum stays below ``limit`` is the complete row, bit for bit."""
     poses = kernel_array(poses)
     P = kernel_array(P).reshape(-1, 3)
     use_n = N is not None and bound.w > 0
     Nn = kernel_array(N if use_n else np.zeros((1, 3)))
-    order = np.ascontiguousarray(order, dtype=np.int64)
-    kernel = _lower_costs_until if len(poses) * len(P) >= PARALLEL_MIN else _lower_costs_until_serial
-    return kernel(poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
-                  bound.box_lo, bound.box_hi, float(bound.w), BINS, order, float(limit))
+    args = (poses, P, Nn, use_n, float(cap), bound.lo, float(bound.h), bound.shape, bound.root, bound.dirs,
+            bound.box_lo, bound.box_hi, float(bound.w), BINS)
+    parallel = len(poses) * len(P) >= PARALLEL_MIN
+    if limit is None:
+        return (_lower_costs if parallel else _lower_costs_serial)(*args)
+    order = np.ascontiguousarray(np.arange(len(P)) if order is None else order, dtype=np.int64)
+    return (_lower_costs_until if parallel else _lower_costs_until_serial)(*args, order, float(limit))
 
 
 def build_cost_bound(tree, box_lo, box_hi, w: float) -> CostBound:

@@ -235,26 +235,17 @@ class ProximityModel(MeasurementModel):
         use_n = self._uses_normals(contacts)
         return self._bound(self._weight(use_n)).slack
 
-    def _lower_costs(self, poses, contacts):
+    def _lower_costs(self, poses, contacts, limit: float | None = None, order=None):
         """(N, K) lower bounds of :meth:`contact_costs` (d_M^2, capped like it) of trusted
-        poses, from the table (:mod:`touchloc.models._bounds`): a lookup per pair."""
+        poses, from the table (:mod:`touchloc.models._bounds`): a lookup per pair. With
+        ``limit`` (d_M^2), each pose takes its contacts in ``order`` until their bounds sum
+        to ``limit`` or more; the pairs not reached hold 0, and a row whose sum stays below
+        ``limit`` is the complete row, bit for bit."""
         use_n = self._uses_normals(contacts)
         w = self._weight(use_n)
         s2 = self.sigma_pos**2
         lower = _bounds.lower_costs(self._bound(w), poses, contacts.points, contacts.normals if use_n else None,
-                                    cap=self.cost_cap * s2)
-        return lower / s2
-
-    def _lower_costs_until(self, poses, contacts, limit: float, order):
-        """:meth:`_lower_costs`, each pose's contacts taken in ``order`` until their bounds
-        sum to ``limit`` (d_M^2) or more; the pairs not reached hold 0, and a row whose sum
-        stays below ``limit`` is the row :meth:`_lower_costs` gives, bit for bit."""
-        use_n = self._uses_normals(contacts)
-        w = self._weight(use_n)
-        s2 = self.sigma_pos**2
-        lower = _bounds.lower_costs_until(self._bound(w), poses, contacts.points,
-                                          contacts.normals if use_n else None, limit * s2, order,
-                                          cap=self.cost_cap * s2)
+                                    cap=self.cost_cap * s2, limit=None if limit is None else limit * s2, order=order)
         return lower / s2
 
     def query_costs(self, points, normals=None, *, method: str | None = None) -> np.ndarray:
