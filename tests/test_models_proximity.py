@@ -496,6 +496,67 @@ def test_packed_near_lists_give_back_every_list(n_faces):
     assert len(over) == int(np.sum(lengths[lengths > slots] + 1))
     back_off, back_ids = K.unpack_near_lists(entries, over, n_faces)
     assert np.array_equal(back_off, off) and np.array_equal(back_ids, ids)
+    assert np.array_equal(K.near_list_kinds(entries, n_faces), np.where(lengths > slots, K.NEAR_LONG, 0))
+
+    # plane lists (one face) and coplanar lists (2 to slots - 1 faces) carry their kind
+    kind = np.zeros(len(lengths), np.int64)
+    kind[lengths == 1] = K.NEAR_PLANE
+    if slots >= 3:
+        kind[(lengths >= 2) & (lengths <= slots - 1)] = K.NEAR_COPLANAR
+    entries, over = K.pack_near_lists(off, ids, n_faces, kind=kind)
+    back_off, back_ids = K.unpack_near_lists(entries, over, n_faces)
+    assert np.array_equal(back_off, off) and np.array_equal(back_ids, ids)
+    assert np.array_equal(K.near_list_kinds(entries, n_faces), np.where(lengths > slots, K.NEAR_LONG, kind))
+    # a long list whose index in ``over`` ends in the code's bits is still long
+    b = K.near_width(n_faces)
+    code = (1 << b) - 2
+    assert K.near_list_kinds(np.array([code | (code << b)], np.uint64), n_faces)[0] == K.NEAR_LONG
+    with pytest.raises(ValueError):
+        K.pack_near_lists(off, ids, n_faces, kind=np.where(lengths == 2, K.NEAR_PLANE, 0))
+
+
+def test_lists_in_one_plane_answer_as_the_lists_they_stand_for(objects):
+    """A near list whose faces lie in one plane answers from the face that holds the
+    query's projection (a coplanar list), or, where its whole cell projects into one face,
+    from that face's plane alone (a plane list). Queries anywhere in such lists' cells, with
+    their bins' normals, get the answers of the same lists packed as plain ones, bit for
+    bit, never below the exact cost; a plane list's answer is its face's plane cost."""
+    import dataclasses
+
+    from touchloc.models import _kernels as K
+
+    rng = np.random.default_rng(3)
+    dirs, _ = K.cube_bin_directions()
+    for name in ("cereal", "bread", "mug"):
+        obj = objects[name]
+        model = ProximityModel(obj, 0.002, np.deg2rad(5))
+        w = model._weight(True)
+        grid = model._grid(w)
+        n = len(grid.tri)
+        kinds = K.near_list_kinds(grid.near_entries, n)
+        # each entry's cell and bin: entries follow the cells' set bits in order
+        words = grid.near_cells[:, :6, None] >> np.arange(64, dtype=np.uint64)
+        cell_of, bin_of = np.nonzero(((words & np.uint64(1)) != 0).reshape(len(grid.near_cells), 384))
+        assert len(cell_of) == len(kinds)
+        entries, over = K.pack_near_lists(*K.unpack_near_lists(grid.near_entries, grid.near_ids, n), n)
+        plain = dataclasses.replace(grid, near_entries=entries, near_ids=over)
+        for kind in (K.NEAR_PLANE, K.NEAR_COPLANAR):
+            assert (kinds == kind).mean() > 0.005, (name, kind)
+            e = rng.choice(np.flatnonzero(kinds == kind), 4000)
+            ijk = np.stack(np.unravel_index(cell_of[e], tuple(grid.shape[0])), axis=1)
+            P = grid.lo[0] + (ijk + rng.random((len(e), 3))) * grid.h[0]
+            N = dirs[bin_of[e]] / np.linalg.norm(dirs[bin_of[e]], axis=1, keepdims=True)
+            found, cost = K.near_list_costs(grid, P, N)
+            found_plain, cost_plain = K.near_list_costs(plain, P, N)
+            assert found.all() and found_plain.all()
+            assert np.array_equal(cost, cost_plain), name
+            exact = model.query_costs(P, N, method="exact")
+            assert np.min(cost / model.sigma_pos**2 - exact) > -1e-9
+            if kind == K.NEAR_PLANE:
+                f = K.unpack_near_lists(grid.near_entries[e], grid.near_ids, n)[1]
+                pl = grid.planes[f]
+                d = np.einsum("ij,ij->i", P, pl[:, :3]) - pl[:, 3]
+                assert np.allclose(cost, d * d + w * np.sum((N - pl[:, :3]) ** 2, axis=1), rtol=1e-12, atol=0)
 
 
 def test_the_default_finest_cell_is_no_finer_than_the_noise(objects):

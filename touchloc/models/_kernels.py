@@ -525,6 +525,10 @@ NEAR_REACH = 3.0
 NEAR_COST = 25.0
 #: ... and the list holds the winners of its samples that cost less than this (d_M^2).
 NEAR_SAMPLE_COST = 50.0
+#: Kinds of packed near lists besides a plain one (:func:`pack_near_lists`): kept apart
+#: (too long for its entry), a plane list (one face, into which the whole cell projects)
+#: and a coplanar list (faces of one plane: the one that holds a query's projection answers).
+NEAR_LONG, NEAR_PLANE, NEAR_COPLANAR = 1, 2, 3
 
 _M1 = np.uint64(0x5555555555555555)
 _M2 = np.uint64(0x3333333333333333)
@@ -608,6 +612,28 @@ def _near_face(planes, tri, nrm, f, px, py, pz, nx, ny, nz, w, best, bf):
 
 
 @nb.njit(inline="always", **_NB)
+def _plane_cost(planes, f, px, py, pz, nx, ny, nz, w):
+    """Face f's plane distance squared plus its normal term: its cost where the point
+    projects into it, as :func:`_face_lb_edges` computes it there."""
+    s = px * planes[f, 0] + py * planes[f, 1] + pz * planes[f, 2] - planes[f, 3]
+    return s * s + w * ((nx - planes[f, 0]) ** 2 + (ny - planes[f, 1]) ** 2 + (nz - planes[f, 2]) ** 2)
+
+
+@nb.njit(inline="always", **_NB)
+def _projects_into(planes, f, px, py, pz):
+    """Whether the point's projection on face f's plane lies in the triangle (inside or on
+    every edge line, as :func:`_face_lb_edges` tells it)."""
+    e = px * planes[f, 4] + py * planes[f, 5] + pz * planes[f, 6] - planes[f, 7]
+    e1 = px * planes[f, 8] + py * planes[f, 9] + pz * planes[f, 10] - planes[f, 11]
+    if e1 > e:
+        e = e1
+    e2 = px * planes[f, 12] + py * planes[f, 13] + pz * planes[f, 14] - planes[f, 15]
+    if e2 > e:
+        e = e2
+    return not e > 0.0
+
+
+@nb.njit(inline="always", **_NB)
 def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
     """The best face of the normal-keyed list of a finest-level ``cell`` for this query.
 
@@ -633,14 +659,30 @@ def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
     v = entries[e]
     b = np.uint64(width)
     empty = (np.uint64(1) << b) - np.uint64(1)
-    if (v & empty) == empty - np.uint64(1):  # a long list, kept apart: its length, then its faces
+    code = empty - np.uint64(1)
+    slots = 64 // width
+    if (v & empty) == code:  # a long list, kept apart: its length, then its faces
         o = np.int64(v >> b)
         for j in range(o + 1, o + 1 + np.int64(over[o])):
             best, bf = _near_face(planes, tri, nrm, np.int64(over[j]), px, py, pz, nx, ny, nz, w, best, bf)
         return True, best, bf
-    for s in range(64 // width):
+    if ((v >> b) & empty) == code:
+        # a plane list: the whole cell projects into its one face, so the plane's
+        # distance is the distance
+        f = np.int64(v & empty)
+        return True, _plane_cost(planes, f, px, py, pz, nx, ny, nz, w), f
+    if ((v >> (b * np.uint64(slots - 1))) & empty) == code:
+        # a coplanar list: the face that holds the point's projection answers (every other
+        # face of the plane is farther); where none does, the list as any other
+        for s in range(slots - 1):
+            f = (v >> (b * np.uint64(s))) & empty
+            if f == empty:
+                break
+            if _projects_into(planes, np.int64(f), px, py, pz):
+                return True, _plane_cost(planes, np.int64(f), px, py, pz, nx, ny, nz, w), np.int64(f)
+    for s in range(slots):
         f = (v >> (b * np.uint64(s))) & empty
-        if f == empty:
+        if f >= code:
             break
         best, bf = _near_face(planes, tri, nrm, np.int64(f), px, py, pz, nx, ny, nz, w, best, bf)
     return True, best, bf
@@ -652,7 +694,7 @@ def near_width(n_faces: int) -> int:
     return max(8, int(n_faces + 1).bit_length())
 
 
-def pack_near_lists(off, ids, n_faces: int):
+def pack_near_lists(off, ids, n_faces: int, kind=None):
     """The near lists (list e: faces ``ids[off[e]:off[e + 1]]``) packed one uint64 entry a
     list, so that a query reads its faces from the entry it finds (one memory access
     fewer; docs/benchmarks.md, "Localisation speed with few contacts").
@@ -660,11 +702,20 @@ def pack_near_lists(off, ids, n_faces: int):
     Face ids take ``b = near_width(n_faces)`` bits each. A list of at most ``64 // b``
     faces sits in its entry, slot s in bits [b s, b s + b), its unused slots all ones. A
     longer list sits in ``over`` (int32) as its length and then its faces; its entry holds
-    all ones but the lowest bit in slot 0 and the list's index in ``over`` above it.
+    the code (all ones but the lowest bit) in slot 0 and the list's index in ``over`` above
+    it. ``kind`` (a list each, :data:`NEAR_PLANE`, :data:`NEAR_COPLANAR` or 0) marks the
+    lists that :func:`_plane_faces` found in one plane: a plane list, one face, has the
+    code in slot 1; a coplanar list, of 2 to ``64 // b - 1`` faces, in its last slot.
     Returns (entries, over).
     """
     off = np.asarray(off, dtype=np.int64)
     ids = np.asarray(ids, dtype=np.int64)
+    kind = np.zeros(len(off) - 1, np.int64) if kind is None else np.asarray(kind, dtype=np.int64)
+    n_slots = 64 // near_width(n_faces)
+    ln = np.diff(off)
+    if (kind.shape != ln.shape or np.any((kind == NEAR_PLANE) & (ln != 1))
+            or np.any((kind == NEAR_COPLANAR) & ((ln < 2) | (ln > n_slots - 1)))):
+        raise ValueError("a plane list holds one face, a coplanar list 2 to 64 // width - 1")
     b = near_width(n_faces)
     slots = 64 // b
     empty = (1 << b) - 1
@@ -676,6 +727,8 @@ def pack_near_lists(off, ids, n_faces: int):
     table = np.full((n, slots), empty, np.uint64)
     keep = short[owner]
     table[owner[keep], slot[keep]] = ids[keep].astype(np.uint64)
+    table[kind == NEAR_PLANE, 1] = empty - 1
+    table[kind == NEAR_COPLANAR, slots - 1] = empty - 1
     entries = np.zeros(n, np.uint64)
     for s in range(slots):
         entries |= table[:, s] << np.uint64(b * s)
@@ -693,9 +746,25 @@ def pack_near_lists(off, ids, n_faces: int):
     return entries, over
 
 
+def near_list_kinds(entries, n_faces: int) -> np.ndarray:
+    """(E,) int: the kind of each packed entry (:func:`pack_near_lists`): 0 a list of its
+    own faces, :data:`NEAR_LONG`, :data:`NEAR_PLANE` or :data:`NEAR_COPLANAR`."""
+    b = near_width(n_faces)
+    empty = np.uint64((1 << b) - 1)
+    code = empty - np.uint64(1)
+    entries = np.asarray(entries, dtype=np.uint64)
+    out = np.zeros(len(entries), np.int64)
+    # in kernel order: slot 0 of a long list's entry is its code, and its index fills the rest
+    out[((entries >> np.uint64(b * (64 // b - 1))) & empty) == code] = NEAR_COPLANAR
+    out[((entries >> np.uint64(b)) & empty) == code] = NEAR_PLANE
+    out[(entries & empty) == code] = NEAR_LONG
+    return out
+
+
 def unpack_near_lists(entries, over, n_faces: int):
     """The lists that :func:`pack_near_lists` packed, as (off, ids): list e holds the
-    faces ``ids[off[e]:off[e + 1]]``, in entry order (for tests and diagnostics)."""
+    faces ``ids[off[e]:off[e + 1]]``, in entry order (for tests and diagnostics;
+    :func:`near_list_kinds` tells the kinds)."""
     entries = np.asarray(entries, dtype=np.uint64)
     over = np.asarray(over, dtype=np.int64)
     b = near_width(n_faces)
@@ -704,7 +773,8 @@ def unpack_near_lists(entries, over, n_faces: int):
     low = (entries & np.uint64(empty)).astype(np.int64)
     long_ = low == empty - 1
     table = np.stack([(entries >> np.uint64(b * s)) & np.uint64(empty) for s in range(slots)], axis=1).astype(np.int64)
-    used = (table != empty) & ~long_[:, None]
+    # a face id is below both codes: a plane or coplanar list's code is no face
+    used = (table < empty - 1) & ~long_[:, None]
     at = (entries[long_] >> np.uint64(b)).astype(np.int64)
     lengths = used.sum(axis=1)
     lengths[long_] = over[at]
@@ -936,6 +1006,53 @@ def _near_fill(cells, S1, S2, cidx, cost, face, corners, relevant, start, ids, p
                 ids[start[r, b] + u] = buf[u]
 
 
+#: A plane list's cell projects into its face at least this far (m) inside each of the
+#: face's edges, so that a query in the cell, rounded, projects inside too.
+PLANE_MARGIN = 1e-9
+
+
+@nb.njit(parallel=True, **_NB)
+def _plane_faces(owner, ijk, off, ids, group, planes, lo, h, face, coplanar):
+    """Per near list: whether its faces lie in one plane (:func:`coplanar_groups`; a list of
+    one face does) into ``coplanar``, and if so, into ``face``, the listed face whose
+    triangle holds the projection of the whole of the list's cell (its 8 corners at least
+    :data:`PLANE_MARGIN` inside each edge: the edges' in-plane distances are linear, so
+    the whole box is), or -1.
+
+    A point of such a cell is as far from that face as from its plane, and no coplanar
+    face is nearer, so the list's answer is that face's plane cost: a plane list
+    (:func:`pack_near_lists`)."""
+    for e in nb.prange(off.shape[0] - 1):
+        face[e] = -1
+        a, z = off[e], off[e + 1]
+        g0 = group[ids[a]]
+        same = True
+        for j in range(a + 1, z):
+            if g0 < 0 or group[ids[j]] != g0:
+                same = False
+                break
+        coplanar[e] = same
+        if not same:
+            continue
+        r = owner[e]
+        for j in range(a, z):
+            f = ids[j]
+            inside = True
+            for c in range(8):
+                x = lo[0] + (ijk[r, 0] + (c >> 2)) * h
+                y = lo[1] + (ijk[r, 1] + ((c >> 1) & 1)) * h
+                z_ = lo[2] + (ijk[r, 2] + (c & 1)) * h
+                for k in range(3):
+                    m = 4 + 4 * k
+                    if x * planes[f, m] + y * planes[f, m + 1] + z_ * planes[f, m + 2] - planes[f, m + 3] > -PLANE_MARGIN:
+                        inside = False
+                if not inside:
+                    break
+            if inside:
+                face[e] = f
+                break
+
+
 def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float, adjacency=None):
     """The normal-keyed lists of the finest level's cells near the surface.
 
@@ -952,7 +1069,11 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
     6 words, bit b of word s set where side s's bin b has a list, then the entry of its
     first list), ``near_entries`` and ``near_ids`` (the lists of tree-order faces, packed by
     :func:`pack_near_lists`) and
-    ``planes`` (:func:`face_planes`).
+    ``planes`` (:func:`face_planes`). A list whose cell projects, as a whole, into one of
+    its faces, all of them in that face's plane, keeps that face alone as a plane list
+    (:func:`_plane_faces`): its queries cost one plane distance; any other list in one
+    plane is a coplanar list, whose queries test the edges of its faces until one holds
+    their projection.
     """
     lo = np.asarray(lo, dtype=np.float64)
     shape = np.asarray(shape, dtype=np.int64)
@@ -1007,8 +1128,27 @@ def build_near_lists(tree: BVH, lo, cell: float, shape, w: float, sigma2: float,
         table[cells, :6] = np.bitwise_or.reduce(bits, axis=2)
         per_cell = has.sum(axis=1)
         table[cells, 6] = np.concatenate([[0], np.cumsum(per_cell)[:-1]]).astype(np.uint64)
-    entries, over = pack_near_lists(off, ids, len(tree.tri))
-    return dict(near_cells=table, near_entries=entries, near_ids=over, planes=face_planes(tree.tri, tree.nrm))
+    planes = face_planes(tree.tri, tree.nrm)
+    # lists in one plane: a query's answer is the plane cost of the face that holds its
+    # projection, and where the whole cell projects into one face, that face alone
+    face = np.empty(len(lengths), np.int64)
+    coplanar = np.empty(len(lengths), np.bool_)
+    _plane_faces(np.repeat(np.arange(len(cells)), has.sum(axis=1)), ijk, off, ids, group, planes,
+                 lo, float(cell), face, coplanar)
+    flat = face >= 0
+    kind = np.where(flat, NEAR_PLANE, 0)
+    kind[coplanar & ~flat & (lengths >= 2) & (lengths <= 64 // near_width(len(tree.tri)) - 1)] = NEAR_COPLANAR
+    if flat.any():
+        lengths = np.where(flat, 1, lengths)
+        keep = np.repeat(~flat, np.diff(off))
+        pos = np.zeros(len(lengths) + 1, np.int64)
+        np.cumsum(lengths, out=pos[1:])
+        new_ids = np.empty(int(pos[-1]), np.int64)
+        new_ids[pos[:-1][flat]] = face[flat]
+        new_ids[np.repeat(~flat, lengths)] = ids[keep]
+        off, ids = pos, new_ids
+    entries, over = pack_near_lists(off, ids, len(tree.tri), kind=kind)
+    return dict(near_cells=table, near_entries=entries, near_ids=over, planes=planes)
 
 
 @nb.njit(**_NB)
