@@ -222,6 +222,28 @@ def face_planes(tri: np.ndarray, nrm: np.ndarray) -> np.ndarray:
 
 
 @nb.njit(inline="always", **_NB)
+def _plane_cost(planes, f, px, py, pz, nx, ny, nz, w):
+    """Face f's plane distance squared plus its normal term (:func:`face_planes`): its cost
+    where the point projects into the triangle, and a lower bound of it elsewhere."""
+    s = px * planes[f, 0] + py * planes[f, 1] + pz * planes[f, 2] - planes[f, 3]
+    return s * s + w * ((nx - planes[f, 0]) ** 2 + (ny - planes[f, 1]) ** 2 + (nz - planes[f, 2]) ** 2)
+
+
+@nb.njit(inline="always", **_NB)
+def _edge_excess(planes, f, px, py, pz):
+    """The point's largest in-plane distance outside face f's edge lines (:func:`face_planes`;
+    at most 0 where its projection lies in the triangle)."""
+    e = px * planes[f, 4] + py * planes[f, 5] + pz * planes[f, 6] - planes[f, 7]
+    e1 = px * planes[f, 8] + py * planes[f, 9] + pz * planes[f, 10] - planes[f, 11]
+    if e1 > e:
+        e = e1
+    e2 = px * planes[f, 12] + py * planes[f, 13] + pz * planes[f, 14] - planes[f, 15]
+    if e2 > e:
+        e = e2
+    return e
+
+
+@nb.njit(inline="always", **_NB)
 def _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w):
     """A lower bound of face f's joint cost from its plane and edge lines
     (:func:`face_planes`), and whether it is the cost itself.
@@ -231,15 +253,8 @@ def _face_lb_edges(planes, f, px, py, pz, nx, ny, nz, w):
     projection lies in the triangle and the plane's distance is the distance. Returns
     (bound, exact).
     """
-    s = px * planes[f, 0] + py * planes[f, 1] + pz * planes[f, 2] - planes[f, 3]
-    e = px * planes[f, 4] + py * planes[f, 5] + pz * planes[f, 6] - planes[f, 7]
-    e1 = px * planes[f, 8] + py * planes[f, 9] + pz * planes[f, 10] - planes[f, 11]
-    if e1 > e:
-        e = e1
-    e2 = px * planes[f, 12] + py * planes[f, 13] + pz * planes[f, 14] - planes[f, 15]
-    if e2 > e:
-        e = e2
-    lb = s * s + w * ((nx - planes[f, 0]) ** 2 + (ny - planes[f, 1]) ** 2 + (nz - planes[f, 2]) ** 2)
+    lb = _plane_cost(planes, f, px, py, pz, nx, ny, nz, w)
+    e = _edge_excess(planes, f, px, py, pz)
     if e > 0.0:
         return lb + e * e, False
     return lb, True
@@ -612,28 +627,6 @@ def _near_face(planes, tri, nrm, f, px, py, pz, nx, ny, nz, w, best, bf):
 
 
 @nb.njit(inline="always", **_NB)
-def _plane_cost(planes, f, px, py, pz, nx, ny, nz, w):
-    """Face f's plane distance squared plus its normal term: its cost where the point
-    projects into it, as :func:`_face_lb_edges` computes it there."""
-    s = px * planes[f, 0] + py * planes[f, 1] + pz * planes[f, 2] - planes[f, 3]
-    return s * s + w * ((nx - planes[f, 0]) ** 2 + (ny - planes[f, 1]) ** 2 + (nz - planes[f, 2]) ** 2)
-
-
-@nb.njit(inline="always", **_NB)
-def _projects_into(planes, f, px, py, pz):
-    """Whether the point's projection on face f's plane lies in the triangle (inside or on
-    every edge line, as :func:`_face_lb_edges` tells it)."""
-    e = px * planes[f, 4] + py * planes[f, 5] + pz * planes[f, 6] - planes[f, 7]
-    e1 = px * planes[f, 8] + py * planes[f, 9] + pz * planes[f, 10] - planes[f, 11]
-    if e1 > e:
-        e = e1
-    e2 = px * planes[f, 12] + py * planes[f, 13] + pz * planes[f, 14] - planes[f, 15]
-    if e2 > e:
-        e = e2
-    return not e > 0.0
-
-
-@nb.njit(inline="always", **_NB)
 def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
     """The best face of the normal-keyed list of a finest-level ``cell`` for this query.
 
@@ -678,7 +671,7 @@ def _near_list(near, tri, nrm, cell, px, py, pz, nx, ny, nz, w):
             f = (v >> (b * np.uint64(s))) & empty
             if f == empty:
                 break
-            if _projects_into(planes, np.int64(f), px, py, pz):
+            if not _edge_excess(planes, np.int64(f), px, py, pz) > 0.0:
                 return True, _plane_cost(planes, np.int64(f), px, py, pz, nx, ny, nz, w), np.int64(f)
     for s in range(slots):
         f = (v >> (b * np.uint64(s))) & empty
