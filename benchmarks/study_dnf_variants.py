@@ -73,6 +73,12 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
   an intercept, over the read-outs so far (each weighing as the odometry turned since the
   one before), pulled to ``rate_prior_mean`` with weight L rad^3: a frame offset left by
   the first turn's drift no longer biases the rate (docs/dnf.md, "Fourteenth round");
+* ``trend-Q-L``: the rate from a local linear trend, c = b + r D, by a Kalman filter whose
+  offset b walks by Q deg^2 per rad of odometry (slips and the first turn's frame offset)
+  and whose rate does not (prior as ``slope-L``; Q = 0 is ``slope-L``) (docs/dnf.md,
+  "Fifteenth round");
+* ``offset-T-L``: ``slope-L`` over the first T turns, then the frame offset b it found is
+  kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
   contact instead of a whole window (docs/dnf.md, "Fourteenth round");
 * ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
@@ -262,6 +268,71 @@ def factory(variant: str):
                     m0 = self.params.rate_prior_mean
                     self._rate = min(max((Sxy + L * m0) / (Sxx + L), -0.5), 0.5)
         return Slope
+    if variant.startswith("trend-"):
+        # trend-Q-L: the rate from a local linear trend of the total correction against the
+        # odometry, c = b + r D, by a Kalman filter: the offset b walks (variance Q deg^2 per
+        # rad of odometry turned: slips, and the first turn's frame offset, move it) and the
+        # rate r does not; r's prior is rate_prior_mean with the weight L of slope-L (Q = 0 is
+        # slope-L; a read-out weighs as the odometry turned since the one before)
+        Q, L = (float(x) for x in variant.split("-")[1:3])
+        s2 = np.radians(3.0) ** 2 * 0.5   # a read-out 0.5 rad after the last: 3 deg
+
+        class Trend(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self._x = np.array([0.0, self.params.rate_prior_mean])
+                self._P = np.diag([np.radians(90.0) ** 2, s2 / L])
+                self._last_D = 0.0
+
+            def _step(self, a):
+                super()._step(a)
+                if self.last_error != 0.0 and self._first_odo is not None:
+                    D, c = self.odometry - self._first_odo, self.correction
+                    dD = abs(D - self._last_D)
+                    self._last_D = D
+                    P = self._P
+                    P[0, 0] += np.radians(1.0) ** 2 * Q * dD
+                    H = np.array([1.0, D])
+                    S = H @ P @ H + s2 / max(dD, 1e-3)
+                    K = P @ H / S
+                    self._x = self._x + K * (c - H @ self._x)
+                    self._P = P - np.outer(K, H @ P)
+                    self._rate = min(max(float(self._x[1]), -0.5), 0.5)
+        return Trend
+    if variant.startswith("offset-"):
+        # offset-T-L: the first T turns of odometry fit the correction as c = b + r D (the
+        # slope-L fit, b the frame offset that the first turn's drift leaves in the map);
+        # then b is kept and the rate is the shipped mean rate of c - b, whose slips weigh
+        # as they do in the mean (s / D), not as a line's leverage makes them
+        T, L = (float(x) for x in variant.split("-")[1:3])
+
+        class Offset(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self._sums = np.zeros(5)
+                self._last_D = 0.0
+                self._b = None
+
+            def _step(self, a):
+                super()._step(a)
+                if self.last_error != 0.0 and self._first_odo is not None:
+                    p = self.params
+                    D, c = self.odometry - self._first_odo, self.correction
+                    m0 = p.rate_prior_mean
+                    if self._b is None:
+                        w = max(abs(D - self._last_D), 1e-3)
+                        self._last_D = D
+                        self._sums += w * np.array([1.0, D, c, D * D, D * c])
+                        sw, sD, sc, sDD, sDc = self._sums
+                        Sxx, Sxy = sDD - sD * sD / sw, sDc - sD * sc / sw
+                        r = (Sxy + L * m0) / (Sxx + L)
+                        self._rate = min(max(r, -0.5), 0.5)
+                        if D >= T * 2 * np.pi:
+                            self._b = (sc - r * sD) / sw
+                    else:
+                        self._rate = min(max(((c - self._b) * D + m0 * p.rate_prior ** 2)
+                                             / (D * D + p.rate_prior ** 2), -0.5), 0.5)
+        return Offset
     if variant.startswith("memblur-"):
         # memblur-S: the memory trace is written from the map field's output blurred by a
         # Gaussian of S deg (unit peak kept where the output is a plateau wider than it)
