@@ -130,6 +130,16 @@ from study_dnf_probes import CELLS, _sets, dev_dataset  # noqa: E402
 from study_dnf_search import OBJECTS, evaluate, summary  # noqa: E402
 
 
+def _line_fit(sums, w, D, c, L, m0):
+    """Add the read-out (odometry turned D, total correction c) with weight w to ``sums`` (w,
+    wD, wc, wD^2, wDc; updated in place) and return the weighted line c = b + r D through
+    them all, its slope pulled to m0 with weight L: (r, b)."""
+    sums += w * np.array([1.0, D, c, D * D, D * c])
+    sw, sD, sc, sDD, sDc = sums
+    r = (sDc - sD * sc / sw + L * m0) / (sDD - sD * sD / sw + L)
+    return r, (sc - r * sD) / sw
+
+
 def factory(variant: str):
     """A zero-argument callable that makes the variant's tracker."""
     from touchloc.dnf import OrientationTracker, TrackerParams
@@ -262,11 +272,8 @@ def factory(variant: str):
                     D, c = self.odometry - self._first_odo, self.correction
                     w = max(abs(D - self._last_D), 1e-3)
                     self._last_D = D
-                    self._sums += w * np.array([1.0, D, c, D * D, D * c])
-                    sw, sD, sc, sDD, sDc = self._sums
-                    Sxx, Sxy = sDD - sD * sD / sw, sDc - sD * sc / sw
-                    m0 = self.params.rate_prior_mean
-                    self._rate = min(max((Sxy + L * m0) / (Sxx + L), -0.5), 0.5)
+                    r, _ = _line_fit(self._sums, w, D, c, L, self.params.rate_prior_mean)
+                    self._rate = min(max(r, -0.5), 0.5)
         return Slope
     if variant.startswith("trend-"):
         # trend-Q-L: the rate from a local linear trend of the total correction against the
@@ -322,13 +329,10 @@ def factory(variant: str):
                     if self._b is None:
                         w = max(abs(D - self._last_D), 1e-3)
                         self._last_D = D
-                        self._sums += w * np.array([1.0, D, c, D * D, D * c])
-                        sw, sD, sc, sDD, sDc = self._sums
-                        Sxx, Sxy = sDD - sD * sD / sw, sDc - sD * sc / sw
-                        r = (Sxy + L * m0) / (Sxx + L)
+                        r, b = _line_fit(self._sums, w, D, c, L, m0)
                         self._rate = min(max(r, -0.5), 0.5)
                         if D >= T * 2 * np.pi:
-                            self._b = (sc - r * sD) / sw
+                            self._b = b
                     else:
                         self._rate = min(max(((c - self._b) * D + m0 * p.rate_prior ** 2)
                                              / (D * D + p.rate_prior ** 2), -0.5), 0.5)
