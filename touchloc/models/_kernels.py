@@ -704,15 +704,13 @@ def pack_near_lists(off, ids, n_faces: int, kind=None):
     off = np.asarray(off, dtype=np.int64)
     ids = np.asarray(ids, dtype=np.int64)
     kind = np.zeros(len(off) - 1, np.int64) if kind is None else np.asarray(kind, dtype=np.int64)
-    n_slots = 64 // near_width(n_faces)
-    ln = np.diff(off)
-    if (kind.shape != ln.shape or np.any((kind == NEAR_PLANE) & (ln != 1))
-            or np.any((kind == NEAR_COPLANAR) & ((ln < 2) | (ln > n_slots - 1)))):
-        raise ValueError("a plane list holds one face, a coplanar list 2 to 64 // width - 1")
     b = near_width(n_faces)
     slots = 64 // b
     empty = (1 << b) - 1
     lengths = np.diff(off)
+    if (kind.shape != lengths.shape or np.any((kind == NEAR_PLANE) & (lengths != 1))
+            or np.any((kind == NEAR_COPLANAR) & ((lengths < 2) | (lengths > slots - 1)))):
+        raise ValueError("a plane list holds one face, a coplanar list 2 to 64 // width - 1")
     n = len(lengths)
     owner = np.repeat(np.arange(n), lengths)
     slot = np.arange(len(ids)) - off[owner]
@@ -1032,14 +1030,9 @@ def _plane_faces(owner, ijk, off, ids, group, planes, lo, h, face, coplanar):
             f = ids[j]
             inside = True
             for c in range(8):
-                x = lo[0] + (ijk[r, 0] + (c >> 2)) * h
-                y = lo[1] + (ijk[r, 1] + ((c >> 1) & 1)) * h
-                z_ = lo[2] + (ijk[r, 2] + (c & 1)) * h
-                for k in range(3):
-                    m = 4 + 4 * k
-                    if x * planes[f, m] + y * planes[f, m + 1] + z_ * planes[f, m + 2] - planes[f, m + 3] > -PLANE_MARGIN:
-                        inside = False
-                if not inside:
+                if _edge_excess(planes, f, lo[0] + (ijk[r, 0] + (c >> 2)) * h, lo[1] + (ijk[r, 1] + ((c >> 1) & 1)) * h,
+                                lo[2] + (ijk[r, 2] + (c & 1)) * h) > -PLANE_MARGIN:
+                    inside = False
                     break
             if inside:
                 face[e] = f
