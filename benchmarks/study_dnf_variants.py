@@ -249,9 +249,7 @@ def factory(variant: str):
 
                 def step(f):
                     np.add(W, f, out=W)
-                    P = trace.P
-                    P += (trace.dt / trace.tau) * (trace.build * (f - P) * f - trace.decay * P * (1.0 - f) / (1.0 + W / W0))
-                    return P
+                    return type(trace).step(trace, f, decay_scale=1.0 / (1.0 + W / W0))
                 trace.step = step
         return Consol
     if variant.startswith("slope-"):
@@ -363,11 +361,7 @@ def factory(variant: str):
                 self._hold = np.zeros(self.n_sites)
                 trace, hold = self.trace, self._hold
 
-                def step(f):
-                    P = trace.P
-                    P += (trace.dt / trace.tau) * (trace.build * (f - P) * f - trace.decay * P * (1.0 - f) * (1.0 - hold))
-                    return P
-                trace.step = step
+                trace.step = lambda f: type(trace).step(trace, f, decay_scale=1.0 - hold)
 
             def _detection_evidence(self, f_s, f_hand, shift):
                 pre, mute = super()._detection_evidence(f_s, f_hand, shift)
@@ -386,11 +380,7 @@ def factory(variant: str):
                 self._gate = np.zeros(self.n_sites)
                 trace, gate = self.trace, self._gate
 
-                def step(f):
-                    P = trace.P
-                    P += (trace.dt / trace.tau) * (trace.build * (f - P) * f - mult * trace.decay * P * (1.0 - f) * gate)
-                    return P
-                trace.step = step
+                trace.step = lambda f: type(trace).step(trace, f, decay_scale=mult * gate)
 
             def _step(self, a):
                 if a.size:

@@ -116,6 +116,23 @@ def test_memory_trace_builds_where_output_is_high_and_decays_elsewhere_at_stated
     assert P.max() <= 1.0 and P[0] == pytest.approx(1.0, abs=1e-6)
 
 
+def test_memory_trace_decay_scale_scales_the_forgetting_per_site():
+    """A per-site decay scale multiplies only the decay: 0 holds a site, 2 doubles its rate,
+    1 (or none) is the plain step; a scale of the wrong shape is refused."""
+    mt, plain = MemoryTrace(3, tau=2.0, decay=0.01), MemoryTrace(3, tau=2.0, decay=0.01)
+    mt.P[:] = plain.P[:] = 0.8
+    f = np.zeros(3)
+    for _ in range(20):
+        P = mt.step(f, decay_scale=np.array([0.0, 2.0, 1.0])).copy()
+        Q = plain.step(f).copy()
+    assert P[0] == 0.8 and P[1] == pytest.approx(0.8 * (1 - 2 * 0.01 / 2) ** 20) and P[2] == Q[2]
+    assert MemoryTrace(3).step(np.ones(3), decay_scale=0.5).tolist() == MemoryTrace(3).step(np.ones(3)).tolist()
+    with pytest.raises(ValidationError, match="decay_scale"):
+        mt.step(f, decay_scale=np.ones(4))
+    with pytest.raises(ValidationError):
+        mt.step(f, decay_scale="fast")
+
+
 def test_memory_trace_rejects_unstable_step():
     with pytest.raises(ValidationError, match="stable Euler"):
         MemoryTrace(10, tau=1.0, build=3.0)

@@ -624,18 +624,28 @@ class MemoryTrace:
         """Erase the trace."""
         self.P.fill(0.0)
 
-    def step(self, f) -> np.ndarray:
+    def step(self, f, decay_scale=None) -> np.ndarray:
         """One Euler step of eq. 2 given the field output ``f`` ((n,) in [0, 1]); returns ``P``.
 
-        ``f`` is checked for its shape only; NaN in, NaN out: it is not scanned for NaN
-        (this runs in every step of the tracker)."""
+        ``decay_scale`` (optional, a number or (n,) >= 0) multiplies the decay per site, for
+        variants of the trace whose forgetting depends on something else (the study script
+        ``benchmarks/study_dnf_variants.py`` uses it); the tracker does not.
+
+        ``f`` is checked for its shape only; NaN in, NaN out: it is not scanned for NaN (this
+        runs in every step of the tracker). ``decay_scale`` must be finite and >= 0."""
         P = self.P
         if not isinstance(f, np.ndarray) or f.dtype.kind != "f":
             f = as_float_array(f, "f", finite=False)
         if f.shape != P.shape:
             raise ValidationError(f"f must be the field output, shape {P.shape}, got {f.shape}")
-        dP = self.build * (f - P) * f - self.decay * P * (1.0 - f)
-        P += (self.dt / self.tau) * dP
+        forget = self.decay * P * (1.0 - f)
+        if decay_scale is not None:
+            decay_scale = as_float_array(decay_scale, "decay_scale", low=0.0, expected="a finite scale >= 0 (or one per site)")
+            if decay_scale.shape not in ((), P.shape):
+                raise ValidationError(f"decay_scale must be a number or one per site, shape {P.shape}, "
+                                      f"got {decay_scale.shape}")
+            forget = forget * decay_scale
+        P += (self.dt / self.tau) * (self.build * (f - P) * f - forget)
         return P
 
 
