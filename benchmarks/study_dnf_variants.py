@@ -77,6 +77,9 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
   offset b walks by Q deg^2 per rad of odometry (slips and the first turn's frame offset)
   and whose rate does not (prior as ``slope-L``; Q = 0 is ``slope-L``) (docs/dnf.md,
   "Fifteenth round");
+* ``trendg-Q-L``: ``trend-Q-L`` whose offset moves only at a regrasp (a sample whose
+  odometry did not move since the one before), by Q deg^2 each (docs/dnf.md, "Sixteenth
+  round");
 * ``offset-T-L``: ``slope-L`` over the first T turns, then the frame offset b it found is
   kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
@@ -273,13 +276,17 @@ def factory(variant: str):
                     r, _ = _line_fit(self._sums, w, D, c, L, self.params.rate_prior_mean)
                     self._rate = min(max(r, -0.5), 0.5)
         return Slope
-    if variant.startswith("trend-"):
+    if variant.startswith(("trend-", "trendg-")):
         # trend-Q-L: the rate from a local linear trend of the total correction against the
         # odometry, c = b + r D, by a Kalman filter: the offset b walks (variance Q deg^2 per
         # rad of odometry turned: slips, and the first turn's frame offset, move it) and the
         # rate r does not; r's prior is rate_prior_mean with the weight L of slope-L (Q = 0 is
-        # slope-L; a read-out weighs as the odometry turned since the one before)
+        # slope-L; a read-out weighs as the odometry turned since the one before).
+        # trendg-Q-L: the offset moves only at a regrasp (a sample whose odometry did not
+        # move since the one before: the hand let go and took hold again), by Q deg^2 each;
+        # between regrasps all drift goes into the rate
         Q, L = (float(x) for x in variant.split("-")[1:3])
+        at_regrasp = variant.startswith("trendg-")
         s2 = np.radians(3.0) ** 2 * 0.5   # a read-out 0.5 rad after the last: 3 deg
 
         class Trend(OrientationTracker):
@@ -288,15 +295,19 @@ def factory(variant: str):
                 self._x = np.array([0.0, self.params.rate_prior_mean])
                 self._P = np.diag([np.radians(90.0) ** 2, s2 / L])
                 self._last_D = 0.0
+                self._regrasps = 0
 
             def _step(self, a):
+                prev = self._last_odo
                 super()._step(a)
+                self._regrasps += prev is not None and self.odometry == prev
                 if self.last_error != 0.0 and self._first_odo is not None:
                     D, c = self.odometry - self._first_odo, self.correction
                     dD = abs(D - self._last_D)
                     self._last_D = D
                     P = self._P
-                    P[0, 0] += np.radians(1.0) ** 2 * Q * dD
+                    P[0, 0] += np.radians(1.0) ** 2 * Q * (self._regrasps if at_regrasp else dD)
+                    self._regrasps = 0
                     H = np.array([1.0, D])
                     S = H @ P @ H + s2 / max(dD, 1e-3)
                     K = P @ H / S
