@@ -238,6 +238,24 @@ def factory(variant: str):
             def _evidence_start(self):
                 return min(start, self.params.detection_window)
         return EvStart
+    if variant.startswith("evwin-"):
+        # evwin-W[-N]: the detection histograms' window W samples with contact, the
+        # evidence starting after N (default: the default window, 150), so that a side
+        # landed on flat once a turn keeps its evidence
+        # (+NAME=VALUE[,NAME=VALUE]: other tracker parameters as well)
+        head, _, extra = variant.partition("+")
+        kw = {k: float(v) for k, v in (item.split("=") for item in extra.split(",") if item)}
+        parts = head.split("-")[1:]
+        window = float(parts[0])
+        start = float(parts[1]) if len(parts) > 1 else TrackerParams().detection_start
+
+        class EvWin(OrientationTracker):
+            def __init__(self):
+                super().__init__(detection_window=window, **kw)
+
+            def _evidence_start(self):
+                return start
+        return EvWin
     if variant.startswith("consol-"):
         # consol-W0: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map
         # field's output summed there over the run (samples written): sides written often

@@ -76,7 +76,8 @@ close to threshold (a round object's sliding normal must not keep a stray peak a
 Sides seen in many short visits (an addition to seed 000): with one or two noisy normals
 a finger, a side is detected in bursts of a sample or two, and the map field (time constant
 5 samples) seldom fires on one visit. So the tracker keeps a leaky histogram of the
-surface field's detections in the object frame (``detection_window`` samples) and its twin
+surface field's detections in the object frame (``detection_window`` samples, about three
+turns, so that a side landed on flat only once a turn keeps its evidence) and its twin
 in the hand's frame. A place whose detections stand out in the object frame and not in the
 hand's frame pre-shapes the map field (``detection_gain`` times the contrast's excess over
 ``detection_threshold``), so that the next visit writes it. The contrast is the histogram
@@ -84,7 +85,7 @@ over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes
 come from a corner's broad spread of normals. The pre-shape is withheld where the hand
 field is active, as the match drive is. It is off altogether while the run's hand-frame
 detections are the more concentrated, as a round object's are, since its normal points at
-the finger. It also waits for the first ``detection_window`` samples with contact. Where that
+the finger. It also waits for the first ``detection_start`` samples with contact. Where that
 concentration ratio is lower still, as only a round object's is, the map field's whole
 drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
 scattered normals then write no stray side, and the ones written before fade.
@@ -331,13 +332,16 @@ class TrackerParams:
     #: the object and the hand frame; ``detection_gain`` times the object frame's contrast
     #: (over its mean, less its blur by ``detection_blur``), less the hand frame's, in
     #: excess of ``detection_threshold`` pre-shapes the map field, from the
-    #: ``detection_window``-th sample with contact on. It is scaled by the ratio of the
+    #: ``detection_start``-th sample with contact on. It is scaled by the ratio of the
     #: concentrations of the run's summed detections (the mass in their fullest tenth of
     #: sites, object frame over hand frame), from 0 at ``detection_hold_low`` to 1 at
     #: ``detection_hold_high``: a round object's detections hold still against the hand
     #: (ratios 0.16-0.52 on dense and seed-faithful development data after 150 samples,
-    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"). ``detection_gain = 0`` turns it off
-    detection_window: float = 150.0
+    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"). ``detection_gain = 0`` turns it off.
+    #: The window was 150 samples until the seventeenth round (docs/dnf.md): 300 holds a side
+    #: between flat landings a turn or more apart, at 6 deg of noise
+    detection_window: float = 300.0
+    detection_start: float = 150.0
     detection_gain: float = 8.0
     detection_threshold: float = 0.4
     detection_blur: float = np.radians(15.0)
@@ -345,7 +349,7 @@ class TrackerParams:
     detection_hold_high: float = 0.65
     #: the same ratio mutes the map field: its drive is scaled from 0 at
     #: ``detection_mute_low`` to 1 at ``detection_mute_high`` (from the
-    #: ``detection_window``-th sample with contact on), so that a run whose detections hold
+    #: ``detection_start``-th sample with contact on), so that a run whose detections hold
     #: still against the hand writes no side, and sides written before fade at the
     #: memory's decay rate. Only a round object's ratios fall this low: in the second half
     #: of seed-faithful development data round objects stay within 0.15-0.33 (0.24 or less
@@ -500,6 +504,8 @@ class OrientationTracker:
             raise ValidationError(f"contact_gap must be in (0, pi) rad, got {p.contact_gap!r}")
         if not (1.0 <= p.detection_window <= 1e6):
             raise ValidationError(f"detection_window must be 1 to 1e6 samples, got {p.detection_window!r}")
+        if not (1.0 <= p.detection_start <= 1e6):
+            raise ValidationError(f"detection_start must be 1 to 1e6 samples, got {p.detection_start!r}")
         if not (0.0 <= p.detection_gain <= 1e3):
             raise ValidationError(f"detection_gain must be 0 to 1e3 (0: off), got {p.detection_gain!r}")
         if not (0.0 <= p.detection_threshold <= 1e3):
@@ -749,8 +755,8 @@ class OrientationTracker:
         return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
 
     def _evidence_start(self) -> float:
-        """Samples with contact before the detection evidence acts: a whole window."""
-        return self.params.detection_window
+        """Samples with contact before the detection evidence acts."""
+        return self.params.detection_start
 
     def _fade_splits(self, f_m: np.ndarray) -> None:
         """Let a remembered side weaker than one ``split_near`` to ``split_far`` away decay
