@@ -5,7 +5,8 @@ development seeds ``[11, cell, object, set]`` of all 13 cells of the robustness 
 all five objects (as ``study_dnf_search.py``'s stage 2; the defaults there on data sets
 0-7: 10 cells, mean 0.969, 8-gon 0.907 before the ninth round, 11, 0.978, 0.934 after
 it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0.992,
-0.972 after the twelfth, 12, 0.993, 0.976 since the thirteenth):
+0.972 after the twelfth, 12, 0.993, 0.976 after the thirteenth, 12, 0.995, 0.983 since
+the seventeenth):
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence,
   since the tenth with the mute; the figures of the earlier rounds in docs/dnf.md are
@@ -83,7 +84,12 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
 * ``offset-T-L``: ``slope-L`` over the first T turns, then the frame offset b it found is
   kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
-  contact instead of a whole window (docs/dnf.md, "Fourteenth round");
+  contact instead of ``detection_start`` (docs/dnf.md, "Fourteenth round", when the start
+  was the window's length);
+* ``evwin-W[-N][+NAME=VALUE[,NAME=VALUE]]``: the detection histograms' window W samples
+  with contact, the evidence starting after N (default ``detection_start``), with other
+  tracker parameters as given; ``evwin-150`` is the tracker before the seventeenth round
+  (docs/dnf.md, "Seventeenth round");
 * ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
   output summed there over the run: sides written often last longer between their writes
   (docs/dnf.md, "Fourteenth round");
@@ -100,6 +106,9 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
 the local maxima of a 5 deg density of the object-frame normals (above 0.4 of its peak) of
 the whole run, its second half and its last 150 samples.
 
+``--per-set CELL OBJECT`` lists the variants' right counts data set by data set, for one
+cell and object (the seventeenth round's table).
+
 ``--why CELL OBJECT`` runs the defaults (or the variants given) with the true rotation as odometry (the tracking
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
 into a side missing, a side split in two, a stray peak, or a mix; for one data set
@@ -113,6 +122,7 @@ round" and "Seventh round").
     ../.venv/bin/python study_dnf_variants.py defaults set:tuning_width=0.14 --why noise=6 8-gon --sets 8-15
     ../.venv/bin/python study_dnf_variants.py defaults evidence-gwh-150-3-0.4 --sets 8-15
     ../.venv/bin/python study_dnf_variants.py --peaks noise=6 8-gon 6-gon round --sets 0-3
+    ../.venv/bin/python study_dnf_variants.py defaults evwin-150 --per-set noise=6 8-gon --sets 0-15
 """
 
 from __future__ import annotations
@@ -240,7 +250,7 @@ def factory(variant: str):
         return EvStart
     if variant.startswith("evwin-"):
         # evwin-W[-N]: the detection histograms' window W samples with contact, the
-        # evidence starting after N (default: the default window, 150), so that a side
+        # evidence starting after N (default: ``detection_start``), so that a side
         # landed on flat once a turn keeps its evidence
         # (+NAME=VALUE[,NAME=VALUE]: other tracker parameters as well)
         head, _, extra = variant.partition("+")
@@ -791,6 +801,8 @@ def main(argv=None) -> int:
     ap.add_argument("--set", type=int, default=-1, help="with --why: the data set whose sides to list")
     ap.add_argument("--ideal", nargs=2, metavar=("CELL", "OBJECT"),
                     help="the maxima of a density of all the normals at the true rotation")
+    ap.add_argument("--per-set", nargs=2, metavar=("CELL", "OBJECT"),
+                    help="each variant's right count on every data set of one cell and object")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     a = ap.parse_args(argv)
     sets = _sets(a.sets)
@@ -805,6 +817,17 @@ def main(argv=None) -> int:
             why(a.why[0], a.why[1], sets, a.set, variant)
         return 0
     names = {i: name for name, (i, _) in CELLS.items()}
+    if a.per_set:
+        cell, obj = a.per_set
+        for variant in a.variants:
+            factory(variant)
+        jobs = [(v, CELLS[cell][0], obj, s) for v in a.variants for s in sets]
+        with ProcessPoolExecutor(a.workers) as ex:
+            right = iter(ex.map(_one, jobs))
+            for variant in a.variants:
+                r = [next(right) for _ in sets]
+                print(f"{variant:>32}: mean {100 * np.mean(r):.1f} % | " + " ".join(f"{100 * x:.0f}" for x in r))
+        return 0
     with ProcessPoolExecutor(a.workers) as ex:
         for variant in a.variants:
             factory(variant)   # an unknown name fails here, not in a worker
