@@ -19,7 +19,8 @@ the seventeenth):
   since the eleventh round's commit; every
   round before the eleventh ran without the split decay, ``set:split_decay=0``, and
   every round before the twelfth with ``detection_gain=3``, and every round before the
-  thirteenth with ``rate_prior=1``);
+  thirteenth with ``rate_prior=1``, and every round before the seventeenth with the
+  detection evidence's window at 150 samples, ``evwin-150``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
