@@ -86,7 +86,7 @@ the seventeenth):
   kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
   contact instead of ``detection_start`` (docs/dnf.md, "Fourteenth round", when the start
-  was the window's length);
+  was the window's length: those figures are ``evwin-150-N``'s now);
 * ``evwin-W[-N][+NAME=VALUE[,NAME=VALUE]]``: the detection histograms' window W samples
   with contact, the evidence starting after N (default ``detection_start``), with other
   tracker parameters as given; ``evwin-150`` is the tracker before the seventeenth round
@@ -242,30 +242,28 @@ def factory(variant: str):
         return MemComp
     if variant.startswith("evstart-"):
         # evstart-N: the detection evidence (pre-shape and mute) starts after N samples with
-        # contact instead of a whole window (the histograms' window is unchanged)
+        # contact (the histograms' window is unchanged; the fourteenth round's figures are
+        # evwin-150-N's, from when the start was the window's length)
         start = float(variant.split("-")[1])
-
-        class EvStart(OrientationTracker):
-            def _evidence_start(self):
-                return min(start, self.params.detection_window)
-        return EvStart
+        return lambda: OrientationTracker(detection_start=start)
     if variant.startswith("evwin-"):
         # evwin-W[-N]: the detection histograms' window W samples with contact, the
         # evidence starting after N (default: ``detection_start``), so that a side
         # landed on flat once a turn keeps its evidence
         # (+NAME=VALUE[,NAME=VALUE]: other tracker parameters as well)
         head, _, extra = variant.partition("+")
-        kw = {k: float(v) for k, v in (item.split("=") for item in extra.split(",") if item)}
-        parts = head.split("-")[1:]
-        window = float(parts[0])
-        start = float(parts[1]) if len(parts) > 1 else TrackerParams().detection_start
+        try:
+            kw = {k: float(v) for k, v in (item.split("=") for item in extra.split(",") if item)}
+            parts = head.split("-")[1:]
+            window = float(parts[0])
+            start = float(parts[1]) if len(parts) > 1 else TrackerParams().detection_start
+            OrientationTracker(detection_window=window, detection_start=start, **kw)
+        except Exception as e:
+            raise SystemExit(f"evwin-W[-N][+NAME=VALUE[,NAME=VALUE]], got {variant!r}: {e}") from None
 
         class EvWin(OrientationTracker):
             def __init__(self):
-                super().__init__(detection_window=window, **kw)
-
-            def _evidence_start(self):
-                return start
+                super().__init__(detection_window=window, detection_start=start, **kw)
         return EvWin
     if variant.startswith("consol-"):
         # consol-W0: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map

@@ -740,7 +740,7 @@ class OrientationTracker:
         self._detections_hand += (f_hand - self._detections_hand) / p.detection_window
         self._detections_total += f_s
         self._detections_hand_total += f_hand
-        if self._detection_samples < self._evidence_start():
+        if self._detection_samples < p.detection_start:
             return None, 1.0
         ratio = _concentration(self._detections_total) / max(_concentration(self._detections_hand_total), 1e-300)
         mute = 1.0
@@ -753,10 +753,6 @@ class OrientationTracker:
         hand = np.roll(self._contrast(self._detections_hand), -shift)
         d = self._contrast(self._detections) - np.maximum(hand, 0.0)
         return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
-
-    def _evidence_start(self) -> float:
-        """Samples with contact before the detection evidence acts."""
-        return self.params.detection_start
 
     def _fade_splits(self, f_m: np.ndarray) -> None:
         """Let a remembered side weaker than one ``split_near`` to ``split_far`` away decay
