@@ -488,10 +488,10 @@ def factory(variant: str):
                 super().__init__()
                 step = self.match.step
 
-                def match_step(u):
+                def match_step(u, **kw):
                     if self._detection_samples >= 10:
                         u = u + k * np.clip(self._contrast(self._detections) - th, 0.0, None)
-                    return step(u)
+                    return step(u, **kw)
 
                 self.match.step = match_step
 
@@ -565,8 +565,8 @@ def _detections(T: float, K: float, TH: float, hand: bool, near_sides: bool = Tr
             self._det_hand = np.zeros(self.n_sites)
             step = self.surface.step
 
-            def surface_step(stim):
-                f = step(stim)
+            def surface_step(stim, **kw):
+                f = step(stim, **kw)
                 n = self.n_sites
                 self._det += (f - self._det) / T
                 d = self._contrast(self._det)
@@ -617,7 +617,7 @@ def _evidence(mode: str, T: float, K: float, TH: float, blur: float = 15.0):
             self._d = np.zeros(n)                    # the contrast the pre-shape is made of
             self._shift = 0.0
             step = self.map.step
-            self.map.step = lambda drive: step(drive + self._pre * self._gate())
+            self.map.step = lambda drive, **kw: step(drive + self._pre * self._gate(), **kw)
 
         def _contrast(self, h):
             c = h / max(float(h.mean()), 1e-300)

@@ -326,9 +326,10 @@ def test_the_parallel_warmup_parts_cover_every_kernel_of_warm_kernels():
         from touchloc.belief import _cover as C
         from touchloc.models import integrated as I
         from touchloc.mapping import gpis as G
+        from touchloc.dnf import _kernels as D
 
         def signatures():
-            return {(m.__name__, n): set(d.signatures) for m in (K, B, C, I, G) for n, d in vars(m).items()
+            return {(m.__name__, n): set(d.signatures) for m in (K, B, C, I, G, D) for n, d in vars(m).items()
                     if isinstance(d, numba.core.registry.CPUDispatcher)}
 
         assert W.PARTS == ("serial", "parallel")

@@ -4,8 +4,8 @@ memory trace rates, 2-D field and projections."""
 import numpy as np
 import pytest
 
-from touchloc.dnf import (Field1D, Field2D, FieldParams, MemoryTrace, diagonal_sum, expand, lateral_kernel,
-                          sigmoid)
+from touchloc.dnf import (Field1D, Field2D, FieldParams, MemoryTrace, diagonal_sum, expand, lateral_inputs,
+                          lateral_kernel, sigmoid)
 from touchloc.dnf.fields import circular_convolve, site_angles
 from touchloc.errors import ValidationError
 
@@ -182,6 +182,56 @@ def test_field2d_peak_at_coincidence_of_two_ridges_and_active_method_matches_fft
     rows, cols, block = fields["active"].active_block()
     assert set(rows) <= set(range(20, 41)) and set(cols) <= set(range(290, 311))
     np.testing.assert_allclose(block, f[np.ix_(rows, cols)])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_field2d_ridges_across_the_boundary_with_two_terms_match_fft(dtype):
+    """The compiled ridge step (dt = tau, two ridges) on a non-square field whose active
+    block wraps around both periodic boundaries, with excitation and inhibition, in both
+    dtypes: the same activation as the exact FFT step."""
+    p = FieldParams(tau=1.0, h=-6.0, beta=4.0, c_exc=0.4, sigma_exc=3 * DEG, c_inh=0.1, sigma_inh=8 * DEG,
+                    c_glob=0.001)
+    n0, n1 = 180, 120
+    a = np.zeros(n0, dtype)
+    a[np.r_[176:180, 0:3]] = 4.0
+    a[60:63] = 4.0
+    b = np.zeros(n1, dtype)
+    b[np.r_[118:120, 0:4]] = 4.0
+    fields = {m: Field2D((n0, n1), p, dtype=dtype, method=m) for m in ("active", "fft")}
+    blocks = []
+    for _ in range(6):
+        for f in fields.values():
+            f.step((a[:, None], b[None, :]))
+        blocks.append(fields["active"].active_block()[2].shape)
+    out = fields["active"].output()
+    assert out[0, 0] > 0.9 and out[178, 119] > 0.9 and out[61, 1] > 0.9 and out[100, 60] < 1e-6
+    assert all(r > 0 for r, _ in blocks[1:])
+    np.testing.assert_allclose(fields["active"].u, fields["fft"].u, atol=1e-3)
+    rows, cols, block = fields["active"].active_block()
+    assert {0, 179} <= set(rows) and {0, 119} <= set(cols)
+    np.testing.assert_allclose(block, out[np.ix_(rows, cols)])
+
+
+def test_lateral_inputs_of_several_fields_equal_each_fields_own():
+    fields = [Field1D(N, DRIVEN), Field1D(N, SUSTAINED), Field1D(N, FieldParams(c_exc=1.0, c_glob=0.01))]
+    for i, f in enumerate(fields):
+        f.step(bump(40.0 * i + 10.0, amp=9.0))
+    lat = lateral_inputs(fields)
+    assert lat.shape == (3, N)
+    for row, f in zip(lat, fields):
+        assert np.array_equal(row, f.lateral())          # the same values, to the bit
+    twin = [Field1D(N, DRIVEN), Field1D(N, DRIVEN)]
+    for f in twin:
+        f.u = fields[0].u.copy()
+    out_given = twin[0].step(bump(15.0), lateral=lateral_inputs(twin[:1])[0])
+    out_own = twin[1].step(bump(15.0))
+    assert np.array_equal(out_given, out_own) and out_own.max() > 0.1   # a peak, not rest (2e-9)
+    with pytest.raises(ValidationError, match="lateral"):
+        twin[0].step(0.0, lateral=np.zeros(N - 1))
+    with pytest.raises(ValidationError, match="same number of sites"):
+        lateral_inputs([Field1D(N), Field1D(N // 2)])
+    with pytest.raises(ValidationError, match="non-empty list of Field1D"):
+        lateral_inputs([])
 
 
 def test_field2d_slow_field_active_method_matches_fft_with_generic_stimulus():

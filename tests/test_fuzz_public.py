@@ -391,6 +391,7 @@ CHEAP = {
     "recognition.plot_scan": lambda w: dict(frames=w["X"][0], n_shown=2, columns=2),
     "dnf.lateral_kernel": lambda w: dict(n=36, params=__import__("touchloc.dnf").dnf.FieldParams()),
     "dnf.circular_convolve": dict(x=np.zeros(36), kernel_fft=np.fft.rfft(np.ones(36)), n=36),
+    "dnf.lateral_inputs": lambda w: dict(fields=[__import__("touchloc.dnf").dnf.Field1D(36)]),
     "dnf.RotationDataset": dict(time=[0.0, 1.0], odometry=[0.0, 0.1], normal_angles=[0.1, 0.2],
                                 sample_index=[0, 1]),
     "dnf.standard_datasets": dict(objects=("6-gon",), n_per_object=1, revolutions=0.05),

@@ -16,7 +16,7 @@ _NAMES = {
         "save_recording", "standard_datasets"),
     "estimators": ("HistogramEstimator", "count_surfaces", "normalize_max", "surface_peaks"),
     "fields": ("Field1D", "Field2D", "FieldParams", "MemoryTrace", "circular_convolve", "diagonal_sum", "expand",
-        "lateral_kernel", "sigmoid"),
+        "lateral_inputs", "lateral_kernel", "sigmoid"),
     "tracker": ("OrientationTracker", "TrackerParams", "contact_spreads", "population_code"),
     "particle": ("ParticleOrientationEstimator",),
     "compare": ("EstimatorRun", "compare", "default_estimators", "orientation_error", "run_estimator",
@@ -28,7 +28,7 @@ __all__ = [
     "normalize_max", "population_code", "contact_spreads", "ParticleOrientationEstimator",
     "compare", "run_estimator", "default_estimators", "orientation_error", "summary_table", "EstimatorRun",
     "Field1D", "Field2D", "FieldParams", "MemoryTrace", "sigmoid", "lateral_kernel", "circular_convolve",
-    "expand", "diagonal_sum",
+    "lateral_inputs", "expand", "diagonal_sum",
     "RotationDataset", "generate_rotation_dataset", "standard_datasets", "load_recording", "save_recording",
     "OBJECTS", "SEED_FAITHFUL",
 ]

@@ -44,6 +44,7 @@ __all__ = [
     "periodic_distance",
     "lateral_kernel",
     "circular_convolve",
+    "lateral_inputs",
     "Field1D",
     "Field2D",
     "MemoryTrace",
@@ -166,7 +167,40 @@ def circular_convolve(x, kernel_fft, n: int) -> np.ndarray:
         raise ValidationError(f"x must be a real (..., {n}) array, got {x.dtype} {x.shape}")
     if k.dtype.kind not in "biufc" or k.shape[-1:] != (n // 2 + 1,):
         raise ValidationError(f"kernel_fft must be the rfft of a length-{n} kernel ({n // 2 + 1} values), got {k.shape}")
+    return _convolve(x, kernel_fft, n)
+
+
+def _convolve(x: np.ndarray, kernel_fft: np.ndarray, n: int) -> np.ndarray:
+    """:func:`circular_convolve` without its checks, for the tracker's own arrays. Rows of a
+    2-D ``x`` (with one kernel each, or one for all) are transformed in one call, which
+    gives the same values as one call per row."""
     return np.fft.irfft(np.fft.rfft(x, axis=-1) * kernel_fft, n=n, axis=-1)
+
+
+def lateral_inputs(fields) -> np.ndarray:
+    """The lateral inputs of several :class:`Field1D` of one size, in one FFT.
+
+    Row ``i`` equals ``fields[i].lateral()`` exactly; each can be handed to
+    ``fields[i].step(stimulus, lateral=row)`` as long as that field's activation has not
+    changed in between. A field step costs little more than its FFT, so a model that steps
+    several fields per sample (the tracker steps five) saves most of that by batching.
+
+    Parameters
+    ----------
+    fields : sequence of Field1D
+        At least one, all with the same number of sites.
+
+    Returns
+    -------
+    (len(fields), n) float
+    """
+    fields = list(fields) if isinstance(fields, (list, tuple)) else fields
+    if not isinstance(fields, list) or not fields or not all(isinstance(f, Field1D) for f in fields):
+        raise ValidationError(f"fields must be a non-empty list of Field1D, got {type(fields).__name__}")
+    n = fields[0].n
+    if any(f.n != n for f in fields):
+        raise ValidationError(f"fields must all have the same number of sites, got {[f.n for f in fields]}")
+    return _convolve(np.stack([f.output() for f in fields]), np.stack([f._kernel_fft for f in fields]), n)
 
 
 def _check_n(n) -> int:
@@ -217,10 +251,10 @@ class Field1D:
     def lateral(self, out: np.ndarray | None = None) -> np.ndarray:
         """Lateral input ``sum_x' f(u(x')) w(|x - x'|)``, (n,) float."""
         if out is None:
-            out = self.output()
+            return _convolve(self.output(), self._kernel_fft, self.n)
         return circular_convolve(out, self._kernel_fft, self.n)
 
-    def step(self, stimulus=0.0) -> np.ndarray:
+    def step(self, stimulus=0.0, lateral=None) -> np.ndarray:
         """Advance one Euler step of eq. 1 with external input ``stimulus``.
 
         Parameters
@@ -228,6 +262,9 @@ class Field1D:
         stimulus : float or (n,) float
             External input ``S``. Checked for type and shape; NaN in, NaN out: it is not
             scanned for NaN (this runs in every step).
+        lateral : None or (n,) float
+            The lateral input of the current activation if it was already computed (by
+            :func:`lateral_inputs`, for several fields at once); None computes it here.
 
         Returns
         -------
@@ -236,7 +273,12 @@ class Field1D:
         """
         p = self.params
         stimulus = _stimulus(stimulus, (self.n,))
-        du = -self.u + p.h + stimulus + self.lateral()
+        if lateral is None:
+            lateral = self.lateral()
+        elif not (isinstance(lateral, np.ndarray) and lateral.dtype.kind == "f" and lateral.shape == (self.n,)):
+            raise ValidationError(f"lateral must be a float array of shape ({self.n},) (or None), got "
+                                  f"{type(lateral).__name__} {getattr(lateral, 'shape', '')}")
+        du = -self.u + p.h + stimulus + lateral
         self.u += self._rate * du
         return self.output()
 
@@ -343,6 +385,12 @@ class Field2D:
         # a term is below 1e-8 of its peak
         self._circ = [(self.dtype.type(c), _circulant(g0).astype(self.dtype), _circulant(g1).astype(self.dtype),
                        _reach(g0), _reach(g1)) for c, g0, g1 in terms]
+        # the same for the compiled step: each term's Gaussians (zero beyond their reach; the
+        # second times the term's strength) and the largest reaches
+        self._ridge_terms = (
+            np.array([m0[:, 0] for _, m0, _, _, _ in self._circ], dtype=self.dtype).reshape(-1, self.shape[0]),
+            np.array([m1[:, 0] * c for c, _, m1, _, _ in self._circ], dtype=self.dtype).reshape(-1, self.shape[1]),
+            max([r0 for *_, r0, _ in self._circ], default=0), max([r1 for *_, r1 in self._circ], default=0))
         # f(u) > eps  <=>  u > u_eps
         self._u_eps = self.dtype.type(np.log(self.eps / (1.0 - self.eps)) / p.beta)
         self._u = np.full(self.shape, p.h, dtype=self.dtype)
@@ -501,59 +549,17 @@ class Field2D:
         """
         rows0, cols0, block0 = self.active_block()
         a = a + (self._h - self.dtype.type(self._c_glob * float(block0.sum(dtype=np.float64))))
-        n0, n1 = self.shape
-        if rows0.size:
-            wins = [(_dilate(rows0, r0, n0), _dilate(cols0, r1, n1), c, m0, m1) for c, m0, m1, r0, r1 in self._circ]
-            W0 = np.unique(np.concatenate([w[0] for w in wins])) if len(wins) > 1 else wins[0][0]
-            W1 = np.unique(np.concatenate([w[1] for w in wins])) if len(wins) > 1 else wins[0][1]
-            P = np.zeros((W0.size, W1.size), dtype=self.dtype)
-            for w0, w1, c, m0, m1 in wins:
-                part = (m0[np.ix_(w0, rows0)] @ block0) @ (m1[np.ix_(cols0, w1)] * c)
-                if len(wins) == 1:
-                    P += part
-                else:
-                    P[np.ix_(np.searchsorted(W0, w0), np.searchsorted(W1, w1))] += part
-        else:
-            W0 = W1 = np.zeros(0, dtype=np.int64)
-            P = np.zeros((0, 0), dtype=self.dtype)
-        ue = self._u_eps
-        # row maxima
-        rowmax = a + b.max()
-        if W0.size:
-            out1 = np.ones(n1, dtype=bool)
-            out1[W1] = False
-            b_out = b[out1].max() if out1.any() else -np.inf
-            inner = (a[W0][:, None] + b[W1][None, :] + P).max(axis=1)
-            rowmax[W0] = np.maximum(a[W0] + b_out, inner)
-        R = np.flatnonzero(rowmax > ue)
-        if R.size:
-            in0 = np.zeros(n0, dtype=bool)
-            in0[W0] = True
-            r_in = in0[R]                                  # rows of R inside the window
-            colmax = b + a[R].max()
-            if W0.size:
-                r_out = R[~r_in]
-                cm = b[W1] + (a[r_out].max() if r_out.size else -np.inf)
-                if r_in.any():
-                    pos = np.searchsorted(W0, R[r_in])
-                    cm = np.maximum(cm, (a[R[r_in]][:, None] + b[W1][None, :] + P[pos]).max(axis=0))
-                colmax[W1] = cm
-            C = np.flatnonzero(colmax > ue)
-            U = a[R][:, None] + b[C][None, :]
-            if W0.size and r_in.any():
-                in1 = np.zeros(n1, dtype=bool)
-                in1[W1] = True
-                c_in = in1[C]
-                if c_in.any():
-                    U[np.ix_(np.flatnonzero(r_in), np.flatnonzero(c_in))] += \
-                        P[np.ix_(np.searchsorted(W0, R[r_in]), np.searchsorted(W1, C[c_in]))]
-            block = sigmoid(U, self.params.beta)
-        else:
-            C = R
-            block = np.zeros((0, 0), dtype=self.dtype)
+        W0, W1, P, R, C, U = _kernels().ridge_step(a, b, rows0, cols0, block0, *self._ridge_terms, self._u_eps)
+        block = sigmoid(U, self.params.beta) if R.size else U
         self._lazy = (a, b, W0, W1, P)
         self._block = (R, C, block)
         self._out = None
+
+
+def _kernels():
+    """The compiled step (imported on first use: numba loads only when a 2-D field steps)."""
+    from . import _kernels as k
+    return k
 
 
 def _reach(g: np.ndarray) -> int:
@@ -584,8 +590,10 @@ def _runs(idx: np.ndarray):
 
 
 def _circulant(g: np.ndarray) -> np.ndarray:
+    """``M[i, j] = g[(i - j) % n]``, with the entries beyond :func:`_reach` set to 0."""
     n = g.shape[0]
     i = np.arange(n)
+    g = np.where(periodic_distance(n, n) <= _reach(g), g, 0.0)
     return g[(i[:, None] - i[None, :]) % n]
 
 

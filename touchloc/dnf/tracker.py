@@ -108,7 +108,7 @@ from scipy.special import gammaincinv
 
 from .._validate import as_bool, as_count, as_float, as_instance
 from ..errors import ValidationError
-from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, circular_convolve, sigmoid,
+from .fields import (TWO_PI, Field1D, Field2D, FieldParams, MemoryTrace, _convolve, lateral_inputs, sigmoid,
                      periodic_distance, site_angles)
 
 __all__ = ["TrackerParams", "OrientationTracker", "population_code", "as_angles", "as_odometry"]
@@ -189,9 +189,22 @@ def population_code(angles, n_sites: int, width: float, gain: float, *, normaliz
         return np.zeros(n_sites)
     if normalize:
         gain = gain / a.size
+    return _code(a, np.cos(phi), np.sin(phi), width, gain)
+
+
+def _code(a: np.ndarray, cos_phi: np.ndarray, sin_phi: np.ndarray, width: float, gain: float) -> np.ndarray:
+    """:func:`population_code` of at least one angle, without its checks, given the cosines
+    and sines of the sites' preferred directions."""
     # cos(phi - a) = cos(phi) cos(a) + sin(phi) sin(a)
-    cosd = np.cos(a)[:, None] * np.cos(phi)[None, :] + np.sin(a)[:, None] * np.sin(phi)[None, :]
+    cosd = np.cos(a)[:, None] * cos_phi[None, :] + np.sin(a)[:, None] * sin_phi[None, :]
     return gain * np.exp((cosd - 1.0) / width**2).sum(axis=0)
+
+
+def _roll(x: np.ndarray, shift: int) -> np.ndarray:
+    """``np.roll(x, shift)`` of a 1-D array, for a few microseconds less."""
+    n = x.shape[0]
+    s = shift % n
+    return np.concatenate((x[n - s:], x[:n - s])) if s else x.copy()
 
 
 #: memory height at which a side counts as remembered (seed 000's read-out threshold)
@@ -528,6 +541,7 @@ class OrientationTracker:
         self.params = p
         n = self.n_sites = int(p.n_sites)
         self.angles = site_angles(n)
+        self._cos_phi, self._sin_phi = np.cos(self.angles), np.sin(self.angles)
         self.surface = Field1D(n, p.surface)
         self.map = Field1D(n, p.map)
         self.hand = Field1D(n, p.hand)
@@ -662,8 +676,8 @@ class OrientationTracker:
         self._evidence *= self._leak
         self._weight *= self._leak
         if a.size:
-            self._evidence += population_code(a - self.orientation, self.n_sites, p.tuning_width, 1.0,
-                                              normalize=True)
+            # the mean code (population_code with normalize=True)
+            self._evidence += _code(a - self.orientation, self._cos_phi, self._sin_phi, p.tuning_width, 1.0 / a.size)
             self._weight += 1.0
         # the sample's contacts: their spreads feed the spread normalisation, their number
         # the read-out's count weight
@@ -671,29 +685,41 @@ class OrientationTracker:
         if p.noise_ref > 0 and sp:
             self._observe_spread(sp, mu)
         stim = (p.input_gain * self._gain_scale / max(self._weight, 1.0)) * self._evidence
+        # every field stepped below gets its lateral input from its activation before this
+        # sample: one FFT for all of them
+        stepped = [self.surface, self.map, self.match]
+        if p.hand_to_map:
+            stepped.append(self.hand)
+        if p.correct:
+            stepped.append(self.error)
+        lateral = dict(zip(map(id, stepped), lateral_inputs(stepped)))
         # mapping pathway
-        f_s = self.surface.step(stim)
+        f_s = self.surface.step(stim, lateral=lateral[id(self.surface)])
         P = self.trace.P
         drive = p.surface_to_map * f_s + p.memory_to_map * P
         # world angle = object-frame angle + orientation: a shift by whole sites
         shift = int(round(self.orientation * self.n_sites / TWO_PI)) % self.n_sites
-        f_s_hand = np.roll(f_s, shift)   # the detections in the hand's frame
+        f_s_hand = _roll(f_s, shift)   # the detections in the hand's frame
         pre, mute = (self._detection_evidence(f_s, f_s_hand, shift)
                      if p.detection_gain > 0 or p.detection_mute_high > 0 else (None, 1.0))
         f_h = None
         hand_gate = None
         if p.hand_to_map:
-            f_h = np.roll(self.hand.step(p.surface_to_map * f_s_hand), -shift)
+            f_h = _roll(self.hand.step(p.surface_to_map * f_s_hand, lateral=lateral[id(self.hand)]), -shift)
             drive = drive - p.hand_to_map * f_h
-            # 0 near a contact that holds (or nearly holds) still against the hand, else 1
-            g_h = np.roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
-            hand_gate = 1.0 - np.clip(circular_convolve(g_h, self._match_blur_fft, self.n_sites), 0.0, 1.0)
+            # 0 near a contact that holds (or nearly holds) still against the hand, else 1;
+            # blurred together with the detections (the match field's input)
+            g_h = _roll(sigmoid(self.hand.u + p.hand_gate_margin, p.hand.beta), -shift)
+            broad, g_h = _convolve(np.stack((f_s, g_h)), self._match_blur_fft, self.n_sites)
+            hand_gate = 1.0 - np.clip(g_h, 0.0, 1.0)
+        else:
+            broad = _convolve(f_s, self._match_blur_fft, self.n_sites)
         if pre is not None:
             drive = drive + (pre if hand_gate is None else pre * hand_gate)
         # tracking pathway: match field pulled towards remembered sides (the memory as it
         # was before this sample)
-        broad = circular_convolve(f_s, self._match_blur_fft, self.n_sites)
-        f_match = self.match.step(p.surface_to_match * np.minimum(broad, 1.0) + p.memory_to_match * P)
+        f_match = self.match.step(p.surface_to_match * np.minimum(broad, 1.0) + p.memory_to_match * P,
+                                  lateral=lateral[id(self.match)])
         if p.match_to_map:
             # only while a detected side is near: memory -> match -> map -> memory must not
             # sustain itself without contact
@@ -701,7 +727,7 @@ class OrientationTracker:
             if hand_gate is not None:
                 m = m * hand_gate
             drive = drive + m
-        f_m = self.map.step(drive if mute == 1.0 else mute * drive)
+        f_m = self.map.step(drive if mute == 1.0 else mute * drive, lateral=lateral[id(self.map)])
         self.trace.step(f_m)
         if p.split_decay > 0 and p.correct:
             self._fade_splits(f_m)
@@ -710,7 +736,7 @@ class OrientationTracker:
             self.comparison.step(((f_s * k).astype(np.float32)[:, None],
                                   (f_match * k).astype(np.float32)[None, :]))
             diag = self._diagonal()
-            f_e = self.error.step(p.comparison_to_error * diag * self._window)
+            f_e = self.error.step(p.comparison_to_error * diag * self._window, lateral=lateral[id(self.error)])
             w = np.where(f_e > 0.5, f_e, 0.0)
             tot = w.sum()
             if tot > 0:
@@ -750,8 +776,8 @@ class OrientationTracker:
         scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
         if not (p.detection_gain > 0.0 and scale > 0.0):
             return None, mute
-        hand = np.roll(self._contrast(self._detections_hand), -shift)
-        d = self._contrast(self._detections) - np.maximum(hand, 0.0)
+        obj, hand = self._contrast(np.stack((self._detections, self._detections_hand)))
+        d = obj - np.maximum(_roll(hand, -shift), 0.0)
         return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
 
     def _fade_splits(self, f_m: np.ndarray) -> None:
@@ -762,14 +788,15 @@ class OrientationTracker:
         a, b = self._split_near, self._split_far
         size = b - a + 1
         m = maximum_filter1d(P, size, mode="wrap", origin=-(size // 2))   # max over sites i .. i + size - 1
-        near = np.maximum(np.roll(m, -a), np.roll(m, b))                   # over i + a .. i + b and i - b .. i - a
+        near = np.maximum(_roll(m, -a), _roll(m, b))                       # over i + a .. i + b and i - b .. i - a
         top = maximum_filter1d(P, 2 * a - 1, mode="wrap")                  # over i - a + 1 .. i + a - 1
         P -= self.params.split_decay * P * (1.0 - f_m) * (near > top)
 
     def _contrast(self, h: np.ndarray) -> np.ndarray:
-        """A histogram over its mean, less its blur by ``detection_blur``."""
-        c = h / max(float(h.mean()), 1e-300)
-        return c - circular_convolve(c, self._detection_blur_fft, self.n_sites)
+        """A histogram over its mean, less its blur by ``detection_blur``; several at once as
+        the rows of a 2-D ``h``."""
+        c = h / np.maximum(h.mean(axis=-1, keepdims=True), 1e-300)
+        return c - _convolve(c, self._detection_blur_fft, self.n_sites)
 
     def _count_weight(self, n_normals: int, n_contacts: int) -> float:
         """The read-out's weight by a sample's normals per contact (``normals_ref``)."""
