@@ -81,7 +81,31 @@ def _timing(quick: bool) -> str:
               f"{np.mean(full <= 1e-3):.0%} of steps within 1 ms. The machine was shared (load average "
               f"{load:.1f} on {os.cpu_count()} cores at the end of the timing), which inflates the tail and "
               "the mean; the median is the figure to compare."]
-    return "\n".join(lines)
+    return "\n".join(lines + ["", _against_baseline(quick)])
+
+
+#: the commit before the step's speed-up (batched FFTs, the compiled comparison step)
+TIMING_BASELINE = "6b516ff"
+
+
+def _against_baseline(quick: bool) -> str:
+    """The full tracker's step against :data:`TIMING_BASELINE`'s in the same run
+    (``ab_dnf_step.py``: two worker processes, alternating run by run)."""
+    from _common import table
+    from ab_dnf_step import paired
+
+    rounds = 2 if quick else 4
+    res = paired(TIMING_BASELINE, rounds=rounds, revolutions=2 if quick else 4)
+    if res is None:
+        return f"(No commit {TIMING_BASELINE} in this checkout: the step was not timed against it.)"
+    rows = [[name, f"{np.median(t) * 1e3:.3f} ms", f"{np.median(b) * 1e3:.3f} ms", f"{np.median(b) / np.median(t):.2f}x",
+             "yes" if same else "no"] for name, (t, b, same) in res.items()]
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"Against the commit before the step's speed-up ({TIMING_BASELINE}), measured in the same run: the "
+            f"full tracker of each tree in its own worker process (single-threaded BLAS), {rounds} runs of each "
+            "data set, alternating tree by tree (`python benchmarks/ab_dnf_step.py REV` prints the same table; "
+            f"load average {load:.1f} at the end). \"Same\" compares the final orientation (within 1e-6 rad).\n\n"
+            + table(["data set", "median, this tree", f"median, {TIMING_BASELINE}", "speed-up", "same"], rows))
 
 
 def _fft_tracker(tr):

@@ -200,7 +200,12 @@ def lateral_inputs(fields) -> np.ndarray:
     n = fields[0].n
     if any(f.n != n for f in fields):
         raise ValidationError(f"fields must all have the same number of sites, got {[f.n for f in fields]}")
-    return _convolve(np.stack([f.output() for f in fields]), np.stack([f._kernel_fft for f in fields]), n)
+    beta = fields[0].params.beta
+    if all(f.params.beta == beta for f in fields):   # one sigmoid for all (the tracker's case)
+        out = sigmoid(np.stack([f.u for f in fields]), beta)
+    else:
+        out = np.stack([f.output() for f in fields])
+    return _convolve(out, np.stack([f._kernel_fft for f in fields]), n)
 
 
 def _check_n(n) -> int:

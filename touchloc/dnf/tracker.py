@@ -687,14 +687,10 @@ class OrientationTracker:
         stim = (p.input_gain * self._gain_scale / max(self._weight, 1.0)) * self._evidence
         # every field stepped below gets its lateral input from its activation before this
         # sample: one FFT for all of them
-        stepped = [self.surface, self.map, self.match]
-        if p.hand_to_map:
-            stepped.append(self.hand)
-        if p.correct:
-            stepped.append(self.error)
-        lateral = dict(zip(map(id, stepped), lateral_inputs(stepped)))
+        stepped = ["surface", "map", "match"] + ["hand"] * bool(p.hand_to_map) + ["error"] * bool(p.correct)
+        lateral = dict(zip(stepped, lateral_inputs([getattr(self, name) for name in stepped])))
         # mapping pathway
-        f_s = self.surface.step(stim, lateral=lateral[id(self.surface)])
+        f_s = self.surface.step(stim, lateral=lateral["surface"])
         P = self.trace.P
         drive = p.surface_to_map * f_s + p.memory_to_map * P
         # world angle = object-frame angle + orientation: a shift by whole sites
@@ -705,7 +701,7 @@ class OrientationTracker:
         f_h = None
         hand_gate = None
         if p.hand_to_map:
-            f_h = _roll(self.hand.step(p.surface_to_map * f_s_hand, lateral=lateral[id(self.hand)]), -shift)
+            f_h = _roll(self.hand.step(p.surface_to_map * f_s_hand, lateral=lateral["hand"]), -shift)
             drive = drive - p.hand_to_map * f_h
             # 0 near a contact that holds (or nearly holds) still against the hand, else 1;
             # blurred together with the detections (the match field's input)
@@ -719,7 +715,7 @@ class OrientationTracker:
         # tracking pathway: match field pulled towards remembered sides (the memory as it
         # was before this sample)
         f_match = self.match.step(p.surface_to_match * np.minimum(broad, 1.0) + p.memory_to_match * P,
-                                  lateral=lateral[id(self.match)])
+                                  lateral=lateral["match"])
         if p.match_to_map:
             # only while a detected side is near: memory -> match -> map -> memory must not
             # sustain itself without contact
@@ -727,7 +723,7 @@ class OrientationTracker:
             if hand_gate is not None:
                 m = m * hand_gate
             drive = drive + m
-        f_m = self.map.step(drive if mute == 1.0 else mute * drive, lateral=lateral[id(self.map)])
+        f_m = self.map.step(drive if mute == 1.0 else mute * drive, lateral=lateral["map"])
         self.trace.step(f_m)
         if p.split_decay > 0 and p.correct:
             self._fade_splits(f_m)
@@ -736,7 +732,7 @@ class OrientationTracker:
             self.comparison.step(((f_s * k).astype(np.float32)[:, None],
                                   (f_match * k).astype(np.float32)[None, :]))
             diag = self._diagonal()
-            f_e = self.error.step(p.comparison_to_error * diag * self._window, lateral=lateral[id(self.error)])
+            f_e = self.error.step(p.comparison_to_error * diag * self._window, lateral=lateral["error"])
             w = np.where(f_e > 0.5, f_e, 0.0)
             tot = w.sum()
             if tot > 0:
