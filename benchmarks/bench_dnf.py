@@ -277,9 +277,9 @@ def _large(quick: bool, seed: int = 31) -> str:
             v = np.array(acc[o])
             boot = rng.choice(v, size=(2000, v.size)).mean(axis=1)
             lo, hi = np.percentile(boot, [2.5, 97.5])
-            entries.append(f"{v.mean():.1%} ({lo:.0%}-{hi:.0%})")
+            entries.append(f"{v.mean():.1%} ({lo:.1%}-{hi:.1%})")
             if v.mean() < 0.9:
-                below.append(f"{_cell_label(cell)}: {o} {v.mean():.1%} ({lo:.0%}-{hi:.0%})")
+                below.append(f"{_cell_label(cell)}: {o} {v.mean():.1%} ({lo:.1%}-{hi:.1%})")
             if hi < 0.9:
                 short.append(f"{_cell_label(cell)}: {o}")
         rows.append(f"| {_cell_label(cell)} | " + " | ".join(entries) + " |")
