@@ -30,6 +30,8 @@ the seventeenth):
   from the first sample (not only those on remembered sides), read at the window's
   quantile Q; ``-tune``: the tuning widens as in ``spread-tuning`` instead of the gain
   rising (docs/dnf.md, "Eighth round");
+* ``correxp-E``: the spread normalisation lowers the correction gain by
+  ``(noise_ref / s)^E`` instead of its square (E = 2 is the defaults);
 * ``set:NAME=VALUE[,NAME=VALUE]``: the tracker with those parameters (numbers), for
   probes of one parameter at a time;
 * ``gated-decay-W-M``: the memory decays only where this sample's normals land (a von
@@ -177,6 +179,18 @@ def factory(variant: str):
                     self.params = _widened(self._base, s)
 
         return _keeping_params(SpreadTuning)
+    if variant.startswith("correxp-"):
+        # correxp-E: the spread normalisation lowers the correction gain by (noise_ref / s)^E
+        # instead of the inverse-variance weight's square (E = 2, the defaults)
+        E = float(variant.split("-", 1)[1])
+
+        class CorrExp(OrientationTracker):
+            def _observe_spread(self, sp, mu):
+                super()._observe_spread(sp, mu)
+                if self._noise > self.params.noise_ref:
+                    self._correction_scale = min(1.0, (self.params.noise_ref / self._noise) ** E)
+
+        return CorrExp
     if variant.startswith("spreadall-"):
         # spreadall-Q[-tune]: the spread normalisation fed by every contact from the first
         # sample (not only those on remembered sides), read at the window's quantile Q;
