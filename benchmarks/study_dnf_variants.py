@@ -30,6 +30,8 @@ the seventeenth):
   from the first sample (not only those on remembered sides), read at the window's
   quantile Q; ``-tune``: the tuning widens as in ``spread-tuning`` instead of the gain
   rising (docs/dnf.md, "Eighth round");
+* ``strokewin-T``: the evidence window (``input_window`` = T samples) restarted at every
+  regrasp (a sample whose odometry did not move), so that one stroke's codes are averaged;
 * ``correxp-E``: the spread normalisation lowers the correction gain by
   ``(noise_ref / s)^E`` instead of its square (E = 2 is the defaults);
 * ``set:NAME=VALUE[,NAME=VALUE]``: the tracker with those parameters (numbers), for
@@ -179,6 +181,23 @@ def factory(variant: str):
                     self.params = _widened(self._base, s)
 
         return _keeping_params(SpreadTuning)
+    if variant.startswith("strokewin-"):
+        # strokewin-T: the evidence window (input_window = T samples) restarts at every
+        # regrasp (a sample whose odometry did not move since the one before), so that a
+        # stroke's codes are averaged and the previous stroke's are not carried over
+        T = float(variant.split("-", 1)[1])
+
+        class StrokeWin(OrientationTracker):
+            def __init__(self):
+                super().__init__(input_window=T)
+
+            def _step(self, a):
+                if self._last_odo is not None and self.odometry == self._last_odo:
+                    self._evidence[:] = 0.0
+                    self._weight = 0.0
+                super()._step(a)
+
+        return StrokeWin
     if variant.startswith("correxp-"):
         # correxp-E: the spread normalisation lowers the correction gain by (noise_ref / s)^E
         # instead of the inverse-variance weight's square (E = 2, the defaults)
