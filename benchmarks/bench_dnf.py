@@ -37,8 +37,10 @@ def _step_times(make, ds, repeats):
 
 def _timing(quick: bool) -> str:
     from touchloc.dnf import HistogramEstimator, OrientationTracker, generate_rotation_dataset
+    from touchloc.dnf._kernels import load_kernels
     from touchloc.dnf.particle import ParticleOrientationEstimator
 
+    load_kernels()   # compiled (or loaded from the cache) before anything is timed
     ds = generate_rotation_dataset(6, revolutions=2 if quick else 4, rng=123)
     repeats = 1 if quick else 5
     rows = []

@@ -88,3 +88,35 @@ def test_particle_filter_scale_error_moves_offsets_with_the_odometry():
     # a sample without contact is valid: the offsets still follow the odometry
     pf.step([], 2.0)
     np.testing.assert_allclose(pf.offsets, 0.2, atol=1e-6)
+
+
+def test_run_estimator_loads_the_trackers_kernel_before_its_first_timed_step():
+    """The time per step must not hold the compiled comparison step's compile (seconds, once
+    per install) or load: in a fresh process, the kernel already has its signature when the
+    tracker's first step is called."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        from touchloc.dnf import OrientationTracker, generate_rotation_dataset
+        from touchloc.dnf import _kernels
+        from touchloc.dnf.compare import run_estimator
+
+        seen = []
+        step = OrientationTracker.step
+
+        def first(self, a, odo):
+            if not seen:
+                seen.append(len(_kernels.ridge_step.signatures))
+            return step(self, a, odo)
+
+        OrientationTracker.step = first
+        assert not _kernels.ridge_step.signatures
+        run = run_estimator("dnf", OrientationTracker, generate_rotation_dataset(6, revolutions=0.3, rng=1))
+        print(seen[0], len(run.counts))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    kernels, samples = map(int, r.stdout.split())
+    assert kernels >= 1 and samples > 5

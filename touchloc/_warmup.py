@@ -267,15 +267,10 @@ def _warm_mapping():
 
 
 def _warm_dnf():
-    """The orientation tracker's compiled step of its 2-D comparison field, stepped the way
-    the tracker steps it (two float32 ridges)."""
-    from .dnf.fields import Field2D, FieldParams
+    """The orientation tracker's compiled step of its 2-D comparison field."""
+    from .dnf._kernels import load_kernels
 
-    field = Field2D((36, 36), FieldParams(h=-8.0, c_exc=0.3, c_glob=0.0005))
-    ridge = np.zeros(36, dtype=np.float32)
-    ridge[3] = 9.0
-    for _ in range(2):   # the first step from rest, the second from an active block
-        field.step((ridge[:, None], ridge[None, :]))
+    load_kernels()
 
 
 class SetUp:

@@ -132,3 +132,16 @@ def ridge_step(a, b, rows0, cols0, block0, g0, g1, reach0, reach1, ue):
                 v = v + P[i, in1[y]]
             U[p, q] = v
     return W0, W1, P, R, C, U
+
+
+def load_kernels() -> None:
+    """Compile (the first time after an install) or load :func:`ridge_step` for the argument
+    types the tracker passes: a small comparison-like field stepped twice, from rest and
+    from an active block. Costs well under a millisecond once loaded."""
+    from .fields import Field2D, FieldParams
+
+    field = Field2D((36, 36), FieldParams(h=-8.0, c_exc=0.3, c_glob=0.0005))
+    ridge = np.zeros(36, dtype=np.float32)
+    ridge[3] = 9.0
+    for _ in range(2):
+        field.step((ridge[:, None], ridge[None, :]))
