@@ -20,8 +20,9 @@ _NB = dict(cache=numba_cache_enabled(__file__), nogil=True)
 
 
 @nb.njit(**_NB)
-def _dilate(idx, r, n):
-    """Sorted sites within ``r`` (periodic) of any site in ``idx``."""
+def dilate(idx, r, n):
+    """Sorted sites within ``r`` (periodic) of any site in ``idx``: the window of an active
+    block's lateral input (here and in :meth:`Field2D._add_block_lateral`)."""
     if 2 * r + 1 >= n:
         return np.arange(n)
     mark = np.zeros(n, dtype=np.bool_)
@@ -61,8 +62,8 @@ def ridge_step(a, b, rows0, cols0, block0, g0, g1, reach0, reach1, ue):
     """
     n0, n1 = a.shape[0], b.shape[0]
     if rows0.size:
-        W0 = _dilate(rows0, reach0, n0)
-        W1 = _dilate(cols0, reach1, n1)
+        W0 = dilate(rows0, reach0, n0)
+        W1 = dilate(cols0, reach1, n1)
         P = np.zeros((W0.size, W1.size), dtype=a.dtype)
         A = np.empty((W0.size, rows0.size), dtype=a.dtype)
         B = np.empty((cols0.size, W1.size), dtype=a.dtype)

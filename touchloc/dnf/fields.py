@@ -478,8 +478,8 @@ class Field2D:
         if rows.size == 0:
             return
         for c, m0, m1, r0, r1 in self._circ:
-            w0 = _dilate(rows, r0, self.shape[0])
-            w1 = _dilate(cols, r1, self.shape[1])
+            w0 = _kernels().dilate(rows, r0, self.shape[0])
+            w1 = _kernels().dilate(cols, r1, self.shape[1])
             part = (m0[np.ix_(w0, rows)] @ block) @ (m1[np.ix_(cols, w1)] * c)
             # the windows are a few contiguous runs: add run by run with slices
             runs0, runs1 = _runs(w0), _runs(w1)
@@ -571,17 +571,6 @@ def _reach(g: np.ndarray) -> int:
     """Largest site offset at which the periodic Gaussian ``g`` is still above 1e-8."""
     big = np.flatnonzero(g[: g.shape[0] // 2 + 1] > 1e-8)
     return int(big[-1])
-
-
-def _dilate(idx: np.ndarray, r: int, n: int) -> np.ndarray:
-    """Sorted sites within ``r`` (periodic) of any site in ``idx``."""
-    if 2 * r + 1 >= n:
-        return np.arange(n)
-    m = np.zeros(n, dtype=np.int32)
-    m[idx] = 1
-    ext = np.concatenate((m[n - r:], m, m[:r])) if r else m      # ext[k] is site k - r
-    cs = np.concatenate(([0], np.cumsum(ext)))
-    return np.flatnonzero(cs[2 * r + 1:] - cs[:n] > 0)            # any mark in sites i-r..i+r
 
 
 def _runs(idx: np.ndarray):
