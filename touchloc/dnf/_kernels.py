@@ -4,8 +4,9 @@ The tracker's comparison field is a 360 x 360 field of which a block of some 20 
 is active. Its step is a few small matrix products and a few dozen index operations on
 arrays of 20-100 entries; in numpy each of those costs more in call overhead than in
 arithmetic, so the index work runs here, compiled, and the products stay with BLAS
-(``np.dot`` on float32 or float64 arrays). The arithmetic is the numpy code's, in the
-field's dtype, operation for operation.
+(``np.dot`` on float32 or float64 arrays). Every sum is formed in the field's dtype and in
+the order numpy would form it (``(a + b) + P``), so the result equals a numpy version of
+the same step to the bit.
 """
 
 from __future__ import annotations
