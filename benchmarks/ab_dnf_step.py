@@ -28,12 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import ROOT, TreeWorker, baseline_tree, table  # noqa: E402
 
-#: the data sets timed: name -> generate_rotation_dataset arguments (bench_dnf's two)
-DATASETS = {
-    "dense 6-gon": dict(n_sides=6, rng=123),
-    "base cell 6-gon": dict(n_sides=6, rng=123, normals_per_contact=2, noise=float(np.radians(3.0)), drop=0.1,
-                            normal_source="pad"),
-}
+#: the data sets timed (bench_dnf's two): the generator's dense default and the sweep's base cell
+DATASETS = ("dense 6-gon", "base cell 6-gon")
 
 
 def _worker() -> None:
@@ -47,8 +43,10 @@ def _worker() -> None:
         req = json.loads(line)
         name = req["dataset"]
         if name not in data:
-            kw = dict(DATASETS[name])
-            ds = generate_rotation_dataset(kw.pop("n_sides"), revolutions=req["revolutions"], **kw)
+            from bench_dnf import _BASE, _cell_kwargs
+
+            kw = _cell_kwargs(_BASE) if name == DATASETS[1] else {}
+            ds = generate_rotation_dataset(6, revolutions=req["revolutions"], rng=123, **kw)
             data[name] = list(ds.samples())
             tr = OrientationTracker()
             for a, odo in data[name]:      # untimed: kernels load (or compile) here

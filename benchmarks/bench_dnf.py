@@ -171,6 +171,12 @@ def sweep_cells() -> list[dict]:
     return cells
 
 
+def _sweep_cell(cell):
+    """A cell as :class:`touchloc.experiments.DNFSweep` takes it."""
+    return dict(normals_per_contact=cell["normals_per_contact"], noise_deg=cell["noise"], drop=cell["drop"],
+                bias=(0.04, 0.08) if cell["bias"] is None else cell["bias"], slip_deg=cell["slip"])
+
+
 def _cell_label(cell):
     b = "4-8 %" if cell["bias"] is None else f"{cell['bias']:.0%}"
     return (f"{cell['normals_per_contact']} / {cell['noise']:g} / {cell['drop']:.0%} / {b} / "
@@ -187,9 +193,7 @@ def _sweep(quick: bool, seed: int = 2, n_sets: int | None = None, label: str = "
     # one trial per (cell, object, data set, estimator), all on the process pool
     sweep = DNFSweep(sides=[n for _, n in _SWEEP_OBJECTS], estimators=list(DNF_NAMES), sets=n_sets, seed=seed,
                      revolutions=revolutions, normal_source="pad",
-                     cells=[dict(normals_per_contact=c["normals_per_contact"], noise_deg=c["noise"], drop=c["drop"],
-                                 bias=(0.04, 0.08) if c["bias"] is None else c["bias"], slip_deg=c["slip"])
-                            for c in cells])
+                     cells=[_sweep_cell(c) for c in cells])
     t0 = time.perf_counter()
     results, how = run_trials(f"dnf-sweep-{seed}", sweep.trials(), quick)
     names = list(DNF_NAMES)
@@ -262,9 +266,7 @@ def _large(quick: bool, seed: int = 31) -> str:
     n_sets = 2 if quick else LARGE_SETS
     sweep = DNFSweep(sides=[n for _, n in _SWEEP_OBJECTS], estimators=[DNF], sets=n_sets, seed=seed,
                      revolutions=4.0, normal_source="pad",
-                     cells=[dict(normals_per_contact=c["normals_per_contact"], noise_deg=c["noise"], drop=c["drop"],
-                                 bias=(0.04, 0.08) if c["bias"] is None else c["bias"], slip_deg=c["slip"])
-                            for c in cells])
+                     cells=[_sweep_cell(c) for c in cells])
     t0 = time.perf_counter()
     results, how = run_trials(f"dnf-large-{seed}", sweep.trials(), quick)
     dt = time.perf_counter() - t0
