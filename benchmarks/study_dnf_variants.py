@@ -20,7 +20,9 @@ the seventeenth):
   round before the eleventh ran without the split decay, ``set:split_decay=0``, and
   every round before the twelfth with ``detection_gain=3``, and every round before the
   thirteenth with ``rate_prior=1``, and every round before the seventeenth with the
-  detection evidence's window at 150 samples, ``evwin-150``);
+  detection evidence's window at 150 samples, ``evwin-150``, and every round before the
+  nineteenth with the evidence from the 150th sample with contact and no early raise,
+  ``evstart-150``);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -89,12 +91,26 @@ the seventeenth):
 * ``offset-T-L``: ``slope-L`` over the first T turns, then the frame offset b it found is
   kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
-  contact instead of ``detection_start`` (docs/dnf.md, "Fourteenth round", when the start
-  was the window's length: those figures are ``evwin-150-N``'s now);
+  contact, without the early gate's raise (docs/dnf.md, "Fourteenth round", when the start
+  was the window's length: those figures are ``evwin-150-N``'s now; ``evstart-150`` is the
+  tracker of the seventeenth and eighteenth rounds);
+* ``evearly-N-R[-S]``: the evidence starts after N samples with contact, and its gate's
+  ratios are raised by R there, the raise falling linearly to 0 at S samples (default
+  150); ``evearly-60-0.3`` is the defaults since the nineteenth round (docs/dnf.md,
+  "Nineteenth round");
 * ``evwin-W[-N][+NAME=VALUE[,NAME=VALUE]]``: the detection histograms' window W samples
-  with contact, the evidence starting after N (default ``detection_start``), with other
-  tracker parameters as given; ``evwin-150`` is the tracker before the seventeenth round
-  (docs/dnf.md, "Seventeenth round");
+  with contact, the evidence starting after N (default 150) without the early gate's
+  raise, with other tracker parameters as given; ``evwin-150`` is the tracker before the
+  seventeenth round and ``evwin-300`` the one before the nineteenth (docs/dnf.md,
+  "Seventeenth round");
+* ``evhand-X``: the hand frame's detection contrast subtracted from the object frame's at
+  X times its weight (``evhand-1`` is the defaults; ``evhand-0``: not at all, the
+  concentration ratio's gate and the mute alone keeping a round object out)
+  (docs/dnf.md, "Nineteenth round");
+* ``evsoft-M``: the detection histograms fed the surface field's output as if its
+  threshold were M lower, ``sigmoid(beta (u + M))``, so that a side whose scattered
+  normals bring the field near threshold on a visit adds evidence without a peak
+  (docs/dnf.md, "Nineteenth round");
 * ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
   output summed there over the run: sides written often last longer between their writes
   (docs/dnf.md, "Fourteenth round");
@@ -278,18 +294,85 @@ def factory(variant: str):
         # contact (the histograms' window is unchanged; the fourteenth round's figures are
         # evwin-150-N's, from when the start was the window's length)
         start = float(variant.split("-")[1])
-        return lambda: OrientationTracker(detection_start=start)
+        return lambda: OrientationTracker(detection_start=start, detection_early_raise=0.0)
+    if variant.startswith("evearly-"):
+        # evearly-N-R[-S]: the detection evidence starts after N samples with contact, its
+        # gate (detection_hold_low/high) raised by R at the start, the raise falling
+        # linearly to 0 at S samples (default 150): an early ratio, from few detections, must
+        # be the clearer (the shipped defaults since the nineteenth round: evearly-60-0.3)
+        parts = variant.split("-")[1:]
+        start, R = float(parts[0]), float(parts[1])
+        settle = float(parts[2]) if len(parts) > 2 else 150.0
+        return lambda: OrientationTracker(detection_start=start, detection_early_raise=R, detection_settle=settle)
+    if variant.startswith("evramp-"):
+        # evramp-N-R-G-T: evearly-N-R whose pre-shape's gain rises linearly from G times its
+        # value at the start to its value at 150 samples, and whose contrast threshold is
+        # raised by T at the start, the raise falling linearly to 0 at 150 samples: an early
+        # histogram holds few detections, so a corner's few look like a side
+        start, R, G, T = (float(x) for x in variant.split("-")[1:5])
+
+        class EvRamp(OrientationTracker):
+            def __init__(self):
+                super().__init__(detection_start=start, detection_early_raise=R)
+                self._base = self.params
+
+            def _detection_evidence(self, f_s, f_hand, shift):
+                b = self._base
+                n = self._detection_samples + 1
+                f = min(max((b.detection_settle - n) / max(b.detection_settle - start, 1.0), 0.0), 1.0)
+                self.params = dataclasses.replace(b, detection_gain=b.detection_gain * (1.0 - f * (1.0 - G)),
+                                                  detection_threshold=b.detection_threshold + T * f)
+                try:
+                    return super()._detection_evidence(f_s, f_hand, shift)
+                finally:
+                    self.params = b
+        return EvRamp
+    if variant.startswith("evhand-"):
+        # evhand-X: the hand frame's detection contrast is subtracted from the object
+        # frame's at X times its weight (1: the defaults; 0: not at all, the concentration
+        # ratio's gate and mute alone keeping a round object out)
+        X = float(variant.split("-")[1])
+        from touchloc.dnf.tracker import _concentration, _roll
+
+        class EvHand(OrientationTracker):
+            def _detection_evidence(self, f_s, f_hand, shift):
+                p = self.params
+                pre, mute = super()._detection_evidence(f_s, f_hand, shift)
+                if pre is None:
+                    return pre, mute
+                ratio = (_concentration(self._detections_total)
+                         / max(_concentration(self._detections_hand_total), 1e-300))
+                scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
+                obj, hand = self._contrast(np.stack((self._detections, self._detections_hand)))
+                d = obj - X * np.maximum(_roll(hand, -shift), 0.0)
+                return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
+        return EvHand
+    if variant.startswith("evsoft-"):
+        # evsoft-M: the detection histograms hold the surface field's output as if its
+        # threshold were M lower (sigmoid(beta (u + M))): a side whose scattered normals
+        # bring the field near threshold on a visit, without a peak, still adds evidence
+        M = float(variant.split("-")[1])
+        from touchloc.dnf.fields import sigmoid
+        from touchloc.dnf.tracker import _roll
+
+        class EvSoft(OrientationTracker):
+            def _detection_evidence(self, f_s, f_hand, shift):
+                soft = sigmoid(self.surface.u + M, self.params.surface.beta)
+                return super()._detection_evidence(soft, _roll(soft, shift), shift)
+        return EvSoft
     if variant.startswith("evwin-"):
         # evwin-W[-N]: the detection histograms' window W samples with contact, the
-        # evidence starting after N (default: ``detection_start``), so that a side
-        # landed on flat once a turn keeps its evidence
+        # evidence starting after N (default 150, the start of the seventeenth and
+        # eighteenth rounds) without the early gate's raise, so that a side landed on flat
+        # once a turn keeps its evidence
         # (+NAME=VALUE[,NAME=VALUE]: other tracker parameters as well)
         head, _, extra = variant.partition("+")
         try:
             kw = {k: float(v) for k, v in (item.split("=") for item in extra.split(",") if item)}
             parts = head.split("-")[1:]
             window = float(parts[0])
-            start = float(parts[1]) if len(parts) > 1 else TrackerParams().detection_start
+            start = float(parts[1]) if len(parts) > 1 else 150.0
+            kw = {"detection_early_raise": 0.0, **kw}
             OrientationTracker(detection_window=window, detection_start=start, **kw)
         except Exception as e:
             raise SystemExit(f"evwin-W[-N][+NAME=VALUE[,NAME=VALUE]], got {variant!r}: {e}") from None

@@ -133,3 +133,47 @@ def test_detection_preshape_is_on_for_a_polygon():
     second = out[len(out) // 2:]
     assert np.mean([pre is not None and pre.max() > 0 for pre, _ in second]) > 0.5
     assert min(mute for _, mute in out) == 1.0
+
+
+def _dense_round(seed, i):
+    # the first generator's dense data (``standard_datasets``' seeds: object index 2 is round)
+    return generate_rotation_dataset(0, rng=np.random.default_rng([seed, 2, i]))
+
+
+def _preshape_samples(tracker, ds):
+    """The samples with contact (counted from 1) at which the detection pre-shape was on."""
+    on = []
+    evidence = tracker._detection_evidence
+
+    def recorded(f_s, f_hand, shift):
+        pre, mute = evidence(f_s, f_hand, shift)
+        if pre is not None and pre.max() > 0.0:
+            on.append(tracker._detection_samples)
+        return pre, mute
+
+    tracker._detection_evidence = recorded
+    tracker.run(ds)
+    return on
+
+
+def test_early_detection_gate_lets_a_clear_polygon_in():
+    # from the 60th sample with contact a polygon whose detections are clearly more
+    # concentrated in the object frame than in the hand's (a 4-gon's ratio is above 1.1)
+    # gets its pre-shape long before the 150th, where the evidence used to start
+    on = _preshape_samples(OrientationTracker(), _dataset(1, 4, 0))
+    assert on and 60 <= min(on) < 100
+
+
+@pytest.mark.parametrize("seed, i", [(0, 0), (4, 1), (11, 3), (13, 4)])
+def test_early_detection_gate_keeps_a_dense_round_object_out(seed, i):
+    # a dense round object's ratio starts high (up to 0.76 at 60 samples, 0.64 at 100) and
+    # falls as its detections spread over the object frame; on these sets the plain gate
+    # (0.55-0.65) from the 60th sample writes stray sides (0.53-0.65 right). The raised
+    # early gate keeps its pre-shape off until the gate has settled, and every second-half
+    # count is 0
+    ds = _dense_round(seed, i)
+    settle = OrientationTracker().params.detection_settle
+    assert all(n >= settle for n in _preshape_samples(OrientationTracker(), ds))
+    assert min(_preshape_samples(OrientationTracker(detection_early_raise=0.0), ds)) < 100
+    assert run_estimator("DNF", OrientationTracker, ds).accuracy == 1.0
+    assert run_estimator("plain", lambda: OrientationTracker(detection_early_raise=0.0), ds).accuracy < 0.8

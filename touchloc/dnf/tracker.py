@@ -85,7 +85,8 @@ over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes
 come from a corner's broad spread of normals. The pre-shape is withheld where the hand
 field is active, as the match drive is. It is off altogether while the run's hand-frame
 detections are the more concentrated, as a round object's are, since its normal points at
-the finger. It also waits for the first ``detection_start`` samples with contact. Where that
+the finger. It also waits for the first ``detection_start`` samples with contact, and until
+``detection_settle`` asks the ratio to be the clearer (``detection_early_raise``). Where that
 concentration ratio is lower still, as only a round object's is, the map field's whole
 drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
 scattered normals then write no stray side, and the ones written before fade.
@@ -345,16 +346,27 @@ class TrackerParams:
     #: the object and the hand frame; ``detection_gain`` times the object frame's contrast
     #: (over its mean, less its blur by ``detection_blur``), less the hand frame's, in
     #: excess of ``detection_threshold`` pre-shapes the map field, from the
-    #: ``detection_start``-th sample with contact on. It is scaled by the ratio of the
+    #: ``detection_start``-th sample with contact on (60, about two thirds of a turn; 150
+    #: until the nineteenth round, docs/dnf.md). It is scaled by the ratio of the
     #: concentrations of the run's summed detections (the mass in their fullest tenth of
     #: sites, object frame over hand frame), from 0 at ``detection_hold_low`` to 1 at
     #: ``detection_hold_high``: a round object's detections hold still against the hand
     #: (ratios 0.16-0.52 on dense and seed-faithful development data after 150 samples,
-    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"). ``detection_gain = 0`` turns it off.
+    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"; before that, see
+    #: ``detection_early_raise``). ``detection_gain = 0`` turns it off.
     #: The window was 150 samples until the seventeenth round (docs/dnf.md): 300 holds a side
     #: between flat landings a turn or more apart, at 6 deg of noise
     detection_window: float = 300.0
-    detection_start: float = 150.0
+    detection_start: float = 60.0
+    #: an early ratio, from few detections, must be the clearer: from ``detection_start``
+    #: the gate's two ratios are raised by ``detection_early_raise``, the raise falling
+    #: linearly to 0 at ``detection_settle`` samples with contact. A round object's ratio
+    #: starts high and falls as its detections spread over the object frame: on dense
+    #: development data it reached 0.76 at 60 samples, 0.64 at 100 and 0.53 at 150, while
+    #: the 6 deg 8-gons' lowest were 0.67-0.70 and the 4- to 6-gons' higher (docs/dnf.md,
+    #: "Nineteenth round"). ``detection_early_raise = 0`` gives the plain gate from the start
+    detection_early_raise: float = 0.3
+    detection_settle: float = 150.0
     detection_gain: float = 8.0
     detection_threshold: float = 0.4
     detection_blur: float = np.radians(15.0)
@@ -519,6 +531,10 @@ class OrientationTracker:
             raise ValidationError(f"detection_window must be 1 to 1e6 samples, got {p.detection_window!r}")
         if not (1.0 <= p.detection_start <= 1e6):
             raise ValidationError(f"detection_start must be 1 to 1e6 samples, got {p.detection_start!r}")
+        if not (0.0 <= p.detection_early_raise <= 1e3):
+            raise ValidationError(f"detection_early_raise must be 0 to 1e3, got {p.detection_early_raise!r}")
+        if not (1.0 <= p.detection_settle <= 1e6):
+            raise ValidationError(f"detection_settle must be 1 to 1e6 samples, got {p.detection_settle!r}")
         if not (0.0 <= p.detection_gain <= 1e3):
             raise ValidationError(f"detection_gain must be 0 to 1e3 (0: off), got {p.detection_gain!r}")
         if not (0.0 <= p.detection_threshold <= 1e3):
@@ -769,7 +785,12 @@ class OrientationTracker:
         if ratio < p.detection_mute_high:   # never with detection_mute_high = 0 (off): ratio >= 0
             low = p.detection_mute_low
             mute = 0.0 if ratio <= low else (ratio - low) / (p.detection_mute_high - low)
-        scale = (ratio - p.detection_hold_low) / (p.detection_hold_high - p.detection_hold_low)
+        n = self._detection_samples
+        raise_ = 0.0
+        if n < p.detection_settle and p.detection_early_raise > 0.0:
+            span = max(p.detection_settle - p.detection_start, 1.0)
+            raise_ = p.detection_early_raise * min((p.detection_settle - n) / span, 1.0)
+        scale = (ratio - p.detection_hold_low - raise_) / (p.detection_hold_high - p.detection_hold_low)
         if not (p.detection_gain > 0.0 and scale > 0.0):
             return None, mute
         obj, hand = self._contrast(np.stack((self._detections, self._detections_hand)))
