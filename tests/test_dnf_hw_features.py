@@ -156,13 +156,15 @@ def test_tracker_counts_the_emulated_hands_sides(n_sides):
     from touchloc.dnf import count_surfaces
     from touchloc.experiments.ngon import emulated_rotation
 
-    def right(ds):
+    def counts(ds):
         _, mem = OrientationTracker().run(ds, record=True)
-        half = mem[len(ds) // 2:]
-        return np.mean([count_surfaces(m) == n_sides for m in half])
+        return np.array([count_surfaces(m) for m in mem[len(ds) // 2:]])
 
     # seeds 0-1 were used to choose the width; this one was not
-    assert right(emulated_rotation(n_sides, turns=4.0, rng=12)) >= 0.9
+    assert np.mean(counts(emulated_rotation(n_sides, turns=4.0, rng=12)) == n_sides) >= 0.9
     # every blob kept: the corners' normals hold still through a stroke like a side's and
-    # are remembered as sides (seed 000's input stage cannot tell them apart by angle)
-    assert right(emulated_rotation(n_sides, turns=4.0, rng=12, min_width=None)) <= 0.2
+    # are remembered as sides (seed 000's input stage cannot tell them apart by angle): the
+    # count runs high (the 8-gon's 8-13, passing 8 on the way in a fifth of the samples)
+    wide = counts(emulated_rotation(n_sides, turns=4.0, rng=12, min_width=None))
+    assert np.mean(wide == n_sides) <= 0.5
+    assert np.mean(wide) >= n_sides + 1

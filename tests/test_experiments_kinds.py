@@ -154,7 +154,12 @@ def test_dnf_trials_are_a_sweep_too_and_repeat_on_a_process_pool(tmp_path):
     assert {(t["bias_lo"], t["bias_hi"]) for t in trials} == {(0.04, 0.08), (0.1, 0.1)}
     serial = run_sweep(sw, tmp_path / "s.csv", executor_spec="serial", parquet=False)
     procs = run_sweep(sw, tmp_path / "p.csv", executor_spec="processes", workers=2, parquet=False)
-    assert same_tables(serial, procs)
+    # the pool's workers run single-threaded, this process may not: the tracker's BLAS
+    # products then sum in another order, and a float summary moves in its 11th digit
+    # (the 6 deg 4-gon's RMS error, 5.13625519017 against ...011, in one thread setting);
+    # every count must still be the same
+    assert same_tables(serial, procs, rtol=1e-9)
+    assert not same_tables(serial, [dict(r, accuracy=r["accuracy"] + 1e-6) for r in procs], rtol=1e-9)
     with open(tmp_path / "s.csv") as fh:
         assert fh.readline().strip().split(",") == list(DNF_COLUMNS)
     for r in serial:

@@ -6,11 +6,12 @@ import concurrent.futures as cf
 import contextlib
 import csv
 import io
+import math
 import os
 import threading
 from pathlib import Path
 
-from .._validate import as_bool, as_callable, as_count, as_path, as_timeout
+from .._validate import as_bool, as_callable, as_count, as_nonnegative_float, as_path, as_timeout
 from ..errors import TouchlocError, ValidationError
 from .sweep import DNFSweep, Sweep
 from .trial import DNF_COLUMNS, RESULT_COLUMNS, TIME_COLUMNS, run_dnf_trial, run_trial, warm
@@ -391,10 +392,25 @@ def _check_header(path: Path, columns) -> None:
                               f"{head[:6]}...); write to another file, or start it anew (--fresh / resume=False)")
 
 
-def same_tables(a, b) -> bool:
-    """Whether two lists of result rows are equal in every column but the wall times."""
+def same_tables(a, b, *, rtol: float = 0.0) -> bool:
+    """Whether two lists of result rows are equal in every column but the wall times.
+
+    ``rtol`` lets float columns differ by that much relative to their size (0: exactly
+    equal). A BLAS product's summation order follows its thread count, so a trial run in
+    a process with several threads and the same trial on a single-threaded pool worker can
+    differ in the last digits of a float summary; counts and success flags must still match.
+    """
+    rtol = as_nonnegative_float(rtol, "rtol")
+
+    def same(x, y) -> bool:
+        if x == y:
+            return True
+        if rtol > 0 and isinstance(x, float) and isinstance(y, float):
+            return math.isclose(x, y, rel_tol=rtol, abs_tol=0.0)
+        return False
+
     a, b = sorted(a, key=lambda r: r["trial_id"]), sorted(b, key=lambda r: r["trial_id"])
-    return len(a) == len(b) and all(ra.keys() == rb.keys() and all(ra[c] == rb[c] for c in ra if c not in TIME_COLUMNS)
+    return len(a) == len(b) and all(ra.keys() == rb.keys() and all(same(ra[c], rb[c]) for c in ra if c not in TIME_COLUMNS)
                                     for ra, rb in zip(a, b))
 
 
