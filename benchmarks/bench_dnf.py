@@ -404,7 +404,6 @@ def run(quick: bool = False) -> str:
         # a second family of as many fresh data sets: one family's intervals, read against 90 %,
         # were what a parameter change was judged on, so its verdict is checked on another
         parts += ["", "A second family of held-out data sets, as many, on other seeds:", "", _large(quick, seed=41)]
-    if not quick:
         parts += ["", _accuracy(quick, 1)]
     parts += ["", "### Three families: neural fields, particle filter, 3-D map (tactile SLAM)", "", _families(quick)]
     parts += ["### End to end on the emulated hand's tactile bytes", "", _emulated(quick)]

@@ -45,8 +45,8 @@ def test_mapped_prism_counts_sides_and_corrects_the_odometry():
     # a set's second half by seed, and the share moves with the CPU and thread count that
     # sum the likelihood (seed 4 alone, this test's data set before, read 6 sides in at least
     # 60 % of its second half on an Intel Xeon and in 31 % on an AMD EPYC); so the test asks
-    # for the pooled mode, for 6 or 7 nearly always,
-    # and for every set's odometry to be corrected
+    # for the pooled mode, for 6 or 7 nearly always, and for every set's odometry to be
+    # corrected
     halves = []
     for s in range(2, 10):
         ds = generate_rotation_dataset(6, revolutions=1.5, under_estimate=(0.08, 0.08), slip_std=0.0, rng=s)
