@@ -104,11 +104,12 @@ the seventeenth):
   seventeenth round and ``evwin-300`` the one before the nineteenth (docs/dnf.md,
   "Seventeenth round");
 * ``evhand-X``: the hand frame's detection contrast subtracted from the object frame's at
-  X times its weight (``evhand-1`` is the defaults; ``evhand-0``: not at all, the
+  X times its weight, on the tracker of the eighteenth round (``evhand-1`` is
+  ``evstart-150``; ``evhand-0``: not at all, the
   concentration ratio's gate and the mute alone keeping a round object out)
   (docs/dnf.md, "Nineteenth round");
-* ``evsoft-M``: the detection histograms fed the surface field's output as if its
-  threshold were M lower, ``sigmoid(beta (u + M))``, so that a side whose scattered
+* ``evsoft-M``: on the same tracker, the detection histograms fed the surface field's
+  output as if its threshold were M lower, ``sigmoid(beta (u + M))``, so that a side whose scattered
   normals bring the field near threshold on a visit adds evidence without a peak
   (docs/dnf.md, "Nineteenth round");
 * ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
@@ -335,6 +336,11 @@ def factory(variant: str):
         from touchloc.dnf.tracker import _concentration, _roll
 
         class EvHand(OrientationTracker):
+            # on the tracker it was screened on (the evidence from the 150th sample, no early
+            # raise): its gate below is the plain one
+            def __init__(self):
+                super().__init__(detection_start=150.0, detection_early_raise=0.0)
+
             def _detection_evidence(self, f_s, f_hand, shift):
                 p = self.params
                 pre, mute = super()._detection_evidence(f_s, f_hand, shift)
@@ -356,6 +362,9 @@ def factory(variant: str):
         from touchloc.dnf.tracker import _roll
 
         class EvSoft(OrientationTracker):
+            def __init__(self):   # the tracker it was screened on, as evhand-X
+                super().__init__(detection_start=150.0, detection_early_raise=0.0)
+
             def _detection_evidence(self, f_s, f_hand, shift):
                 soft = sigmoid(self.surface.u + M, self.params.surface.beta)
                 return super()._detection_evidence(soft, _roll(soft, shift), shift)
