@@ -80,9 +80,11 @@ surface field's detections in the object frame (``detection_window`` samples, ab
 turns, so that a side landed on flat only once a turn keeps its evidence) and its twin
 in the hand's frame. A place whose detections stand out in the object frame and not in the
 hand's frame pre-shapes the map field (``detection_gain`` times the contrast's excess over
-``detection_threshold``), so that the next visit writes it. The contrast is the histogram
-over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes, seldom
-come from a corner's broad spread of normals. The pre-shape is withheld where the hand
+``detection_threshold``, or over ``detection_relative`` times the median of the contrast's
+peaks where that is higher), so that the next visit writes it. The contrast is the
+histogram over its mean, less its blur by ``detection_blur``. Detections, unlike raw codes,
+seldom come from a corner's broad spread of normals; the relative threshold keeps out the
+few that do, a stroke over a corner that stands out of an early histogram. The pre-shape is withheld where the hand
 field is active, as the match drive is. It is off altogether while the run's hand-frame
 detections are the more concentrated, as a round object's are, since its normal points at
 the finger. It also waits for the first ``detection_start`` samples with contact, and until
@@ -382,6 +384,14 @@ class TrackerParams:
     #: "Tenth round". ``detection_mute_high = 0`` turns it off
     detection_mute_low: float = 0.25
     detection_mute_high: float = 0.35
+    #: a place's contrast must also exceed ``detection_relative`` times the median of the
+    #: contrast's peaks (its local maxima above ``detection_threshold``): one stroke over a
+    #: corner, whose normals may hold still for a few samples, stands out of an early
+    #: histogram as much as a side does, and a pre-shape there would hold the stray side it
+    #: writes for as long as the window remembers the stroke; beside the sides of the same
+    #: polygon its contrast is a fraction of theirs (docs/dnf.md, "Twentieth round").
+    #: 0 turns it off
+    detection_relative: float = 0.15
     #: the match field's output into the map field (an addition to seed 000): a detected
     #: side that matches a remembered one also drives the map field at the *remembered*
     #: place, so the memory is refreshed where it already holds the side instead of
@@ -537,6 +547,8 @@ class OrientationTracker:
             raise ValidationError(f"detection_settle must be 1 to 1e6 samples, got {p.detection_settle!r}")
         if not (0.0 <= p.detection_gain <= 1e3):
             raise ValidationError(f"detection_gain must be 0 to 1e3 (0: off), got {p.detection_gain!r}")
+        if not (0.0 <= p.detection_relative <= 1e3):
+            raise ValidationError(f"detection_relative must be 0 to 1e3 (0: off), got {p.detection_relative!r}")
         if not (0.0 <= p.detection_threshold <= 1e3):
             raise ValidationError(f"detection_threshold must be 0 to 1e3, got {p.detection_threshold!r}")
         if not (0.0 < p.detection_blur < np.pi):
@@ -795,7 +807,12 @@ class OrientationTracker:
             return None, mute
         obj, hand = self._contrast(np.stack((self._detections, self._detections_hand)))
         d = obj - np.maximum(_roll(hand, -shift), 0.0)
-        return (p.detection_gain * min(scale, 1.0)) * np.clip(d - p.detection_threshold, 0.0, None), mute
+        thr = p.detection_threshold
+        if p.detection_relative > 0.0:
+            peaks = d[(d >= _roll(d, 1)) & (d > _roll(d, -1)) & (d > thr)]
+            if peaks.size:
+                thr = max(thr, p.detection_relative * float(np.median(peaks)))
+        return (p.detection_gain * min(scale, 1.0)) * np.clip(d - thr, 0.0, None), mute
 
     def _fade_splits(self, f_m: np.ndarray) -> None:
         """Let a remembered side weaker than one ``split_near`` to ``split_far`` away decay
