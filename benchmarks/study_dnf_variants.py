@@ -22,7 +22,9 @@ the seventeenth):
   thirteenth with ``rate_prior=1``, and every round before the seventeenth with the
   detection evidence's window at 150 samples, ``evwin-150``, and every round before the
   nineteenth with the evidence from the 150th sample with contact and no early raise,
-  ``evstart-150``);
+  ``evstart-150``, and every round before the twentieth with the pre-shape's threshold
+  absolute only, ``set:detection_relative=0``; the ``evstart``, ``evearly``, ``evramp``,
+  ``evwin``, ``evhand`` and ``evsoft`` variants set it so themselves, as they were screened);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -295,7 +297,7 @@ def factory(variant: str):
         # contact (the histograms' window is unchanged; the fourteenth round's figures are
         # evwin-150-N's, from when the start was the window's length)
         start = float(variant.split("-")[1])
-        return lambda: OrientationTracker(detection_start=start, detection_early_raise=0.0)
+        return lambda: OrientationTracker(detection_start=start, detection_early_raise=0.0, detection_relative=0.0)
     if variant.startswith("evearly-"):
         # evearly-N-R[-S]: the detection evidence starts after N samples with contact, its
         # gate (detection_hold_low/high) raised by R at the start, the raise falling
@@ -304,7 +306,8 @@ def factory(variant: str):
         parts = variant.split("-")[1:]
         start, R = float(parts[0]), float(parts[1])
         settle = float(parts[2]) if len(parts) > 2 else 150.0
-        return lambda: OrientationTracker(detection_start=start, detection_early_raise=R, detection_settle=settle)
+        return lambda: OrientationTracker(detection_start=start, detection_early_raise=R, detection_settle=settle,
+                                          detection_relative=0.0)
     if variant.startswith("evramp-"):
         # evramp-N-R-G-T: evearly-N-R whose pre-shape's gain rises linearly from G times its
         # value at the start to its value at 150 samples, and whose contrast threshold is
@@ -314,7 +317,7 @@ def factory(variant: str):
 
         class EvRamp(OrientationTracker):
             def __init__(self):
-                super().__init__(detection_start=start, detection_early_raise=R)
+                super().__init__(detection_start=start, detection_early_raise=R, detection_relative=0.0)
                 self._base = self.params
 
             def _detection_evidence(self, f_s, f_hand, shift):
@@ -339,7 +342,7 @@ def factory(variant: str):
             # on the tracker it was screened on (the evidence from the 150th sample, no early
             # raise): its gate below is the plain one
             def __init__(self):
-                super().__init__(detection_start=150.0, detection_early_raise=0.0)
+                super().__init__(detection_start=150.0, detection_early_raise=0.0, detection_relative=0.0)
 
             def _detection_evidence(self, f_s, f_hand, shift):
                 p = self.params
@@ -363,7 +366,7 @@ def factory(variant: str):
 
         class EvSoft(OrientationTracker):
             def __init__(self):   # the tracker it was screened on, as evhand-X
-                super().__init__(detection_start=150.0, detection_early_raise=0.0)
+                super().__init__(detection_start=150.0, detection_early_raise=0.0, detection_relative=0.0)
 
             def _detection_evidence(self, f_s, f_hand, shift):
                 soft = sigmoid(self.surface.u + M, self.params.surface.beta)
@@ -381,7 +384,7 @@ def factory(variant: str):
             parts = head.split("-")[1:]
             window = float(parts[0])
             start = float(parts[1]) if len(parts) > 1 else 150.0
-            kw = {"detection_early_raise": 0.0, **kw}
+            kw = {"detection_early_raise": 0.0, "detection_relative": 0.0, **kw}
             OrientationTracker(detection_window=window, detection_start=start, **kw)
         except Exception as e:
             raise SystemExit(f"evwin-W[-N][+NAME=VALUE[,NAME=VALUE]], got {variant!r}: {e}") from None
