@@ -87,10 +87,10 @@ seldom come from a corner's broad spread of normals; the relative threshold keep
 few that do, a stroke over a corner that stands out of an early histogram. The pre-shape
 is withheld where the hand field is active, as the match drive is. It is off altogether
 while the run's hand-frame detections are the more concentrated, as a round object's are,
-since its normal points at the finger. It also waits for the first ``detection_start`` samples with contact, and until
-``detection_settle`` asks the ratio to be the clearer (``detection_early_raise``). Where that
-concentration ratio is lower still, as only a round object's is, the map field's whole
-drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
+since its normal points at the finger. It also waits for the first ``detection_start``
+samples with contact, and until ``detection_settle`` asks the ratio to be the clearer
+(``detection_early_raise``). Where that concentration ratio is lower still, as only a round
+object's is, the map field's whole drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
 scattered normals then write no stray side, and the ones written before fade.
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
