@@ -90,8 +90,9 @@ while the run's hand-frame detections are the more concentrated, as a round obje
 since its normal points at the finger. It also waits for the first ``detection_start``
 samples with contact, and until ``detection_settle`` asks the ratio to be the clearer
 (``detection_early_raise``). Where that concentration ratio is lower still, as only a round
-object's is, the map field's whole drive is muted (``detection_mute_low`` to ``detection_mute_high``): a round object's
-scattered normals then write no stray side, and the ones written before fade.
+object's is, the map field's whole drive is muted (``detection_mute_low`` to
+``detection_mute_high``): a round object's scattered normals then write no stray side, and
+the ones written before fade.
 
 All fields are periodic over ``[0, 2 pi)`` with ``n_sites`` sites and are integrated with
 explicit Euler steps of ``dt = 1`` sample (about 0.4 s at the 2-3 Hz of seed 000, IV-A);
