@@ -201,6 +201,54 @@ def test_a_dnf_sweep_from_toml_runs_through_the_command(tmp_path, capsys):
         Sweep.from_toml(spec)
 
 
+
+def test_a_dnf_sweep_gets_its_own_report(tmp_path, capsys):
+    # `touchloc report` on a DNF sweep's results: the right count per cell and object for
+    # each estimator (the mean over the data sets), a heat map, and how many cells pass
+    from touchloc.cli import main
+
+    spec = tmp_path / "d.toml"
+    spec.write_text('kind = "dnf"\nsides = [4, 0]\nsets = 2\nestimators = ["histogram", "DNF, corrected"]\n'
+                    'revolutions = 1.0\nseed = 5\n[[cells]]\n[[cells]]\nnoise_deg = 6.0\nbias = 0.1\n')
+    out = tmp_path / "d.csv"
+    assert main(["sweep", str(spec), "-o", str(out), "--executor", "serial", "--no-progress"]) == 0
+    rows = read_results(out)
+    assert len(rows) == 16
+    assert main(["report", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    md = (tmp_path / "d.md").read_text()
+    assert (tmp_path / "d.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    tables = {}
+    for block in md.split("**")[1::2]:
+        tables[block] = md.split(f"**{block}**")[1].split("**")[0]
+    assert set(tables) == {"histogram", "DNF, corrected"}
+    for est, table in tables.items():
+        for label, cell in (("2 / 3 / 10% / 4-8 % / 1.5", 0), ("2 / 6 / 10% / 10 % / 1.5", 1)):
+            want = [sum(r["accuracy"] for r in rows if r["estimator"] == est and r["cell"] == cell
+                        and r["sides"] == n) / 2 for n in (4, 0)]
+            line = next(x for x in table.splitlines() if x.startswith(f"| {label} |"))
+            assert line == f"| {label} | {100 * want[0]:.0f} % | {100 * want[1]:.0f} % | 2 |"
+        assert "| cell | 4-gon | round | data sets |" in table
+
+
+def test_a_report_refuses_what_it_cannot_draw(tmp_path):
+    from touchloc.experiments import write_report
+    from touchloc.experiments.report import dnf_markdown_table
+
+    with pytest.raises(ValidationError, match="does not exist"):
+        write_report(tmp_path / "none.csv")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("trial_id,x\na,1\n")
+    with pytest.raises(ValidationError, match="not the results of a sweep"):
+        write_report(bad)
+    row = {"kind": "dnf", "estimator": "histogram", "sides": 4, "normals_per_contact": 2, "noise_deg": 3.0,
+           "drop": 0.1, "bias_lo": 0.04, "bias_hi": 0.08, "slip_deg": 1.5, "cell": 0, "accuracy": 0.5}
+    assert "| 2 / 3 / 10% / 4-8 % / 1.5 | 50 % | 1 |" in dnf_markdown_table([row])
+    for rows, match in (([], "empty"), ("rows", "list"), ([dict(row, kind=None)], "kind 'dnf'"),
+                        ([dict(row, accuracy=float("nan"))], "finite"), ([{"kind": "dnf"}], "lacks")):
+        with pytest.raises(ValidationError, match=match):
+            dnf_markdown_table(rows)
+
 class _CountingThreads:
     """A thread pool that counts the trials it finished (whatever became of their rows).
 
@@ -264,3 +312,18 @@ def test_the_toml_examples_of_the_docs_are_valid_sweeps():
     assert len(blocks) >= 3
     sizes = [len(Sweep.from_dict(tomllib.loads(b)).trials()) for b in blocks]
     assert sizes[0] == 600 and all(n > 0 for n in sizes)
+
+
+def test_a_sweep_will_not_write_its_results_into_a_directory(tmp_path):
+    # a folder where the results file should be (the fuzz suite met one) is a clear error,
+    # not a raw IsADirectoryError, and the folder is left as it was
+    from touchloc.experiments import DNFSweep
+
+    (tmp_path / "res").mkdir()
+    (tmp_path / "res" / "keep.txt").write_text("x")
+    sweep = DNFSweep(sides=[4], estimators=["histogram"], revolutions=0.5)
+    with pytest.raises(ValidationError, match="a directory"):
+        run_sweep(sweep, tmp_path / "res", executor_spec="serial", progress=False)
+    assert (tmp_path / "res" / "keep.txt").read_text() == "x"
+    with pytest.raises(ValidationError, match="cannot make the folder"):
+        run_sweep(sweep, tmp_path / "res" / "keep.txt" / "out.csv", executor_spec="serial", progress=False)

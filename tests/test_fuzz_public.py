@@ -406,6 +406,8 @@ for _name in ("ShapeMap", "TactileSLAM", "transform_results", "explore", "ray_in
 CHEAP["mapping.fit_superquadric"] = _mapping_args
 for _name in ("run_trial", "run_sweep", "read_results", "summarize", "trial_id"):
     CHEAP[f"experiments.{_name}"] = _experiment_args
+CHEAP["experiments.write_report"] = lambda w: dict(results=(_experiment_args(w), "fuzz-results.csv")[1],
+                                                   out_dir="fuzz-report")
 
 for _name in ("SDH2", "DSACON32m", "PacketParser", "crc16", "encode_packet", "encode_rle", "SDH2Kinematics",
               "PadLayout", "find_blobs", "frame_to_contacts", "blobs_to_contacts", "GuardedTouchExecutor",

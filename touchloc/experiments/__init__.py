@@ -6,7 +6,8 @@ mesh); a :class:`DNFSweep` is a grid of orientation-tracking trials on rotating 
 :func:`run_trial` runs one trial as a pure function of its parameters;
 :func:`run_sweep` runs the missing trials of a sweep through an executor (serial, a
 process pool, a Dask ``LocalCluster`` or an existing Dask scheduler) and streams one row
-per trial to a CSV file, so an interrupted sweep resumes where it stopped.
+per trial to a CSV file, so an interrupted sweep resumes where it stopped;
+:func:`write_report` draws a results file and writes its table.
 """
 
 from .._lazy import attach
@@ -17,10 +18,11 @@ _NAMES = {
     "sweep": ("DNF_ESTIMATORS", "ESTIMATORS", "LOOP_OPTIONS", "MODES", "PLANNERS", "DNFSweep", "Sweep",
         "bundled_sweeps", "trial_id"),
     "trial": ("DNF_COLUMNS", "RESULT_COLUMNS", "TIME_COLUMNS", "cache_info", "clear_cache", "run_trial"),
+    "report": ("write_report",),
 }
 
 __all__ = ["Sweep", "DNFSweep", "run_trial", "run_sweep", "executor", "SerialExecutor", "read_results", "write_parquet",
-           "summarize", "trial_id", "bundled_sweeps", "cache_info",
+           "summarize", "trial_id", "bundled_sweeps", "cache_info", "write_report",
            "clear_cache", "COLUMNS", "RESULT_COLUMNS", "TIME_COLUMNS", "ESTIMATORS", "PLANNERS", "MODES",
            "LOOP_OPTIONS", "DNF_COLUMNS", "DNF_ESTIMATORS"]
 

@@ -24,7 +24,9 @@ def register(sub):
 
     q = sub.add_parser("report", help="plots and a markdown table from a sweep's results",
                        description="Draw success and time against contacts per estimator and error CDFs "
-                                   "(<stem>.png) and write a markdown table (<stem>.md).")
+                                   "(<stem>.png) and write a markdown table (<stem>.md); for a DNF sweep "
+                                   "(kind = \"dnf\"), the right side count per cell and object, as tables "
+                                   "and heat maps per estimator.")
     q.add_argument("results", help="results CSV written by touchloc sweep")
     q.add_argument("--out-dir", default=None, help="where to write (default: beside the results)")
     q.set_defaults(func=run_report_cmd)

@@ -311,6 +311,8 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
         raise ValidationError("every trial dict needs its trial_id (take them from Sweep.trials())")
     fn, columns = _KINDS[_kind(trials)]
     out = as_path(out, "out", must_exist=False)
+    if out.exists() and not out.is_file():
+        raise ValidationError(f"out must be a results file, got {out}" + (" (a directory)" if out.is_dir() else ""))
     if not isinstance(executor_spec, str):
         raise ValidationError(f"executor_spec must be a str (see executor()), got {type(executor_spec).__name__}")
     if workers is not None:
@@ -320,7 +322,10 @@ def run_sweep(sweep, out, *, executor_spec="processes", workers=None, progress=N
     resume, parquet, preload = as_bool(resume, "resume"), as_bool(parquet, "parquet"), as_bool(preload, "preload")
     if executor_obj is not None and not callable(getattr(executor_obj, "submit", None)):
         raise ValidationError(f"executor_obj must be a concurrent.futures.Executor, got {type(executor_obj).__name__}")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValidationError(f"cannot make the folder of {out}: {exc}") from None
     if not resume and out.exists():
         out.unlink()
     if out.exists():
