@@ -248,6 +248,13 @@ def test_a_report_refuses_what_it_cannot_draw(tmp_path):
                         ([dict(row, accuracy=float("nan"))], "finite"), ([{"kind": "dnf"}], "lacks")):
         with pytest.raises(ValidationError, match=match):
             dnf_markdown_table(rows)
+    # the localisation report's plots check their rows as its table does
+    from touchloc.experiments.report import plot_results
+
+    for rows, match in (([{"mode": "passive"}], "lacks columns"), ([], "empty"), ("rows", "list")):
+        with pytest.raises(ValidationError, match=match):
+            plot_results(rows, tmp_path / "p.png")
+    assert not (tmp_path / "p.png").exists()
 
 class _CountingThreads:
     """A thread pool that counts the trials it finished (whatever became of their rows).

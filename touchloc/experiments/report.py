@@ -53,6 +53,15 @@ def plot_results(rows, path) -> None:
     """Three panels: success vs contacts, time vs contacts (per estimator, over meshes), ADD-S CDFs."""
     import matplotlib
 
+    from .._validate import as_path
+    from ..errors import ValidationError
+
+    path = as_path(path, "path", must_exist=False)
+    if hasattr(rows, "__iter__") and not isinstance(rows, (str, bytes, dict)):
+        rows = list(rows)
+    # the same checks as the table's (columns and numbers), and at least one row
+    if not summarize(rows, by=("mode", "estimator", "planner", "region", "options", "contacts")):
+        raise ValidationError("rows is empty: no trials to plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -83,8 +92,12 @@ def plot_results(rows, path) -> None:
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise ValidationError(f"cannot write the plots {path}: {exc}") from None
+    finally:
+        plt.close(fig)
 
 
 def _dnf_cell(r) -> tuple:
