@@ -406,6 +406,13 @@ for _name in ("ShapeMap", "TactileSLAM", "transform_results", "explore", "ray_in
 CHEAP["mapping.fit_superquadric"] = _mapping_args
 for _name in ("run_trial", "run_sweep", "read_results", "summarize", "trial_id"):
     CHEAP[f"experiments.{_name}"] = _experiment_args
+_DNF_ROW = {"trial_id": "a", "kind": "dnf", "estimator": "histogram", "sides": 4, "normals_per_contact": 2,
+            "noise_deg": 3.0, "drop": 0.1, "bias_lo": 0.04, "bias_hi": 0.08, "slip_deg": 1.5, "cell": 0,
+            "accuracy": 0.5}
+CHEAP["experiments.markdown_table"] = _experiment_args
+CHEAP["experiments.plot_results"] = lambda w: dict(rows=_experiment_args(w)["rows"], path="fuzz-plots.png")
+CHEAP["experiments.dnf_markdown_table"] = lambda w: dict(rows=[_DNF_ROW])
+CHEAP["experiments.plot_dnf_results"] = lambda w: dict(rows=[_DNF_ROW], path="fuzz-dnf.png")
 CHEAP["experiments.write_report"] = lambda w: dict(results=(_experiment_args(w), "fuzz-results.csv")[1],
                                                    out_dir="fuzz-report")
 
