@@ -1,5 +1,5 @@
 """Property-based fuzzing of every public callable of the subpackages (models, belief, planners,
-dnf, mapping, recognition, experiments).
+dnf, mapping, recognition, experiments and its n-gon module, hardware).
 
 Every name in the ``__all__`` of those subpackages that can be called (functions and class
 constructors) is called with hostile arguments: one argument at a time gets a wrong type,
@@ -32,7 +32,7 @@ from hypothesis import strategies as st  # noqa: E402
 from touchloc.errors import TouchlocError  # noqa: E402
 
 MODULES = ["touchloc.models", "touchloc.belief", "touchloc.planners", "touchloc.dnf", "touchloc.mapping",
-           "touchloc.recognition", "touchloc.experiments", "touchloc.hardware"]
+           "touchloc.recognition", "touchloc.experiments", "touchloc.experiments.ngon", "touchloc.hardware"]
 N_EXAMPLES = 30        # hostile calls per public callable
 TIME_LIMIT = 3.0       # seconds per call: beyond it (and beyond HANG_RETRY times it, once more) a hang
 HANG_RETRY = 10
@@ -425,6 +425,8 @@ for _name in ("check_session", "read_session", "repair_session"):
     CHEAP[f"hardware.{_name}"] = lambda w: {**_hardware_args(w), "path": "fuzz-read.jsonl"}
 CHEAP["hardware.decode_rle"] = _decode_args
 CHEAP["hardware.decode_frame"] = _decode_args
+CHEAP["ngon.emulated_rotation"] = dict(turns=0.05)
+CHEAP["ngon.section_normal_density"] = dict(radius=np.full(36, 0.03))
 
 #: callables left out of the sampled suite (none at present), with the reason
 TOO_SLOW: dict = {}

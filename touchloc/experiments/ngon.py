@@ -23,11 +23,14 @@ sees angles.
 Side count. The map's cross-section through the object's centre is traced along rays
 from the axis (a few Newton steps on the map's signed distance per ray). The outward
 normal direction of each piece of the traced outline, weighted by its length and
-smoothed like :func:`count_surfaces` smooths, is a density over orientation that is 1
-everywhere for a circle and has one sharp peak per flat side. :attr:`memory` is that
-density divided by ``flat_ratio`` and clipped to 1, so that :func:`count_surfaces`'s
-threshold of 0.4 counts the orientations at which the outline has at least
-``0.4 * flat_ratio`` times a circle's share of its length: the flat faces.
+smoothed by ``smoothing`` (5 deg), is a density over orientation that is 1 everywhere for
+a circle and has one sharp peak per flat side. :attr:`memory` is that density divided by
+``flat_ratio`` and clipped to 1, so that :func:`count_surfaces`'s threshold of 0.4 counts
+the orientations at which the outline has at least ``0.4 * flat_ratio`` times a circle's
+share of its length: the flat faces. The smoothing is wider than the count's own 3 deg
+because a mapped face is not quite flat: the map (a Gaussian process with a 12 mm length
+scale) often bends a 30 mm face into two facets a few degrees apart, which 3 deg keeps as
+two peaks (a seventh side on a 6-gon).
 
 Orientation. :attr:`orientation` is the SLAM pose's rotation about the axis (the map's
 frame is the object's frame at the first update, like the tracker's), carried forward
@@ -46,12 +49,21 @@ from scipy.ndimage import gaussian_filter1d
 from .._util import as_rng
 from ..dnf.compare import MAPPED, default_estimators
 from ..dnf.tracker import as_angles, as_odometry
+from .._validate import as_count, as_float, as_float_array, as_name
 from ..errors import ValidationError
 
 __all__ = ["MappedPrismEstimator", "emulated_rotation", "estimators_with_map", "prism_mesh",
            "section_normal_density"]
 
 TWO_PI = 2.0 * np.pi
+
+
+def _as_n_sides(n_sides) -> int:
+    """A prism's number of sides: 0 (round) or an int in [3, 360]."""
+    if isinstance(n_sides, (bool, np.bool_)) or not isinstance(n_sides, (int, np.integer)) \
+            or (n_sides != 0 and not 3 <= n_sides <= 360):
+        raise ValidationError(f"n_sides must be 0 (round) or an int in [3, 360], got {n_sides!r}")
+    return int(n_sides)
 
 
 def prism_mesh(n_sides: int, *, diameter: float = 0.06, height: float = 0.06):
@@ -64,11 +76,9 @@ def prism_mesh(n_sides: int, *, diameter: float = 0.06, height: float = 0.06):
 
     from ..models import MeshObject
 
-    if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
-        raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
-    for name, v in (("diameter", diameter), ("height", height)):
-        if not (np.isfinite(v) and 0 < v < 1):
-            raise ValidationError(f"{name} must be a length in (0, 1) m, got {v!r}")
+    n_sides = _as_n_sides(n_sides)
+    diameter = as_float(diameter, "diameter (m)", low=0.0, low_open=True, high=1.0, high_open=True)
+    height = as_float(height, "height (m)", low=0.0, low_open=True, high=1.0, high_open=True)
     m = trimesh.creation.cylinder(radius=diameter / 2, height=height, sections=int(n_sides) if n_sides else 96)
     return MeshObject(m, name=f"{n_sides}-gon prism" if n_sides else "round cylinder")
 
@@ -94,8 +104,12 @@ def section_normal_density(radius, n_bins: int = 360, *, sigma: float = np.radia
         1 everywhere for a circle; a flat side of length ``L`` adds a peak of area
         ``2 pi L / perimeter`` (rad) at its normal's orientation.
     """
-    r = np.asarray(radius, dtype=np.float64)
-    phi = np.arange(r.size) * (TWO_PI / r.size)
+    r = as_float_array(radius, "radius (m)", finite=False)
+    if r.ndim != 1:
+        raise ValidationError(f"radius must be a 1-D array (M,) of radii per ray, got shape {r.shape}")
+    n_bins = as_count(n_bins, "n_bins", min=3, max=10_000_000, why="memory: one float per bin")
+    sigma = as_float(sigma, "sigma (rad)", low=0.0, high=TWO_PI)
+    phi = np.arange(r.size) * (TWO_PI / max(r.size, 1))
     ok = np.isfinite(r) & (r > 0)
     if ok.sum() < 3:
         return np.zeros(n_bins)
@@ -105,7 +119,7 @@ def section_normal_density(radius, n_bins: int = 360, *, sigma: float = np.radia
     normal = np.arctan2(d[:, 1], d[:, 0]) - np.pi / 2      # outward for a counter-clockwise outline
     b = np.floor((normal % TWO_PI) * (n_bins / TWO_PI)).astype(np.int64) % n_bins
     h = np.bincount(b, weights=length, minlength=n_bins)
-    if sigma > 0:
+    if sigma * n_bins / TWO_PI > 1e-3:   # below a thousandth of a bin the smoothing is the identity
         h = gaussian_filter1d(h, sigma * n_bins / TWO_PI, mode="wrap")
     return h * (n_bins / max(length.sum(), 1e-12))
 
@@ -137,6 +151,9 @@ class MappedPrismEstimator:
     flat_ratio : float
         Density (relative to a circle) at which :attr:`memory` saturates; see the module
         notes.
+    smoothing : float
+        Standard deviation (rad) of the periodic Gaussian that smooths the outline's
+        normal density before :attr:`memory` is read from it; see the module notes.
     n_sites : int
         Sites of :attr:`memory` over ``[0, 2 pi)``.
     n_rays : int
@@ -147,26 +164,26 @@ class MappedPrismEstimator:
 
     def __init__(self, *, every: int = 4, diameter: float = 0.06, height: float = 0.06, n_particles: int = 100,
                  lengthscale: float = 0.012, noise_pos: float = 0.0005, noise_nor: float = 0.05,
-                 flat_ratio: float = 4.0, n_sites: int = 360, n_rays: int = 180, fingers=(0.0, np.pi),
-                 finger_jitter: float = np.radians(3.0), rng=None):
-        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or not 1 <= every <= 100:
-            raise ValidationError(f"every must be an int in [1, 100], got {every!r}")
-        if not (np.isfinite(flat_ratio) and flat_ratio > 1):
-            raise ValidationError(f"flat_ratio must be > 1 (a circle's density is 1), got {flat_ratio!r}")
-        for name, v in (("n_sites", n_sites), ("n_rays", n_rays)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 16 <= v <= 4096:
-                raise ValidationError(f"{name} must be an int in [16, 4096], got {v!r}")
+                 flat_ratio: float = 4.0, smoothing: float = np.radians(5.0), n_sites: int = 360,
+                 n_rays: int = 180, fingers=(0.0, np.pi), finger_jitter: float = np.radians(3.0), rng=None):
+        self.every = as_count(every, "every", min=1, max=100)
+        self.diameter = as_float(diameter, "diameter (m)", low=0.0, low_open=True, high=1.0, high_open=True)
+        self.height = as_float(height, "height (m)", low=0.0, low_open=True, high=1.0, high_open=True)
+        self.n_particles = as_count(n_particles, "n_particles", min=1, max=100_000,
+                                    why="every particle holds a map's pose and is scored per contact")
+        self.lengthscale = as_float(lengthscale, "lengthscale (m)", low=0.0, low_open=True, high=1.0)
+        self.noise_pos = as_float(noise_pos, "noise_pos (m)", low=0.0, high=0.1)
+        self.noise_nor = as_float(noise_nor, "noise_nor", low=0.0, high=1.0)
+        # a circle's density is 1, so a flat side must stand out above it
+        self.flat_ratio = as_float(flat_ratio, "flat_ratio", low=1.0, low_open=True, high=1e6)
+        self.smoothing = as_float(smoothing, "smoothing (rad)", low=0.0, high=np.pi / 4)
+        self.n_sites = as_count(n_sites, "n_sites", min=16, max=4096)
+        self.n_rays = as_count(n_rays, "n_rays", min=16, max=4096)
         self.fingers = as_angles(fingers, "fingers")
-        if not (np.isfinite(finger_jitter) and 0 <= finger_jitter < np.pi):
-            raise ValidationError(f"finger_jitter must be an angle in [0, pi) rad, got {finger_jitter!r}")
-        self.finger_jitter = float(finger_jitter)
-        self.every = int(every)
-        self.diameter, self.height = float(diameter), float(height)
-        self.n_particles = int(n_particles)
-        self.lengthscale = float(lengthscale)
-        self.noise_pos, self.noise_nor = float(noise_pos), float(noise_nor)
-        self.flat_ratio = float(flat_ratio)
-        self.n_sites, self.n_rays = int(n_sites), int(n_rays)
+        if self.fingers.size > 64:
+            raise ValidationError(f"fingers must hold at most 64 approach angles (one guarded move each per "
+                                  f"touch), got {self.fingers.size}")
+        self.finger_jitter = as_float(finger_jitter, "finger_jitter (rad)", low=0.0, high=np.pi, high_open=True)
         self.rng = as_rng(rng)
         self.slam = None
         self.odometry = 0.0
@@ -221,7 +238,7 @@ class MappedPrismEstimator:
     def memory(self) -> np.ndarray:
         """Normal-direction density of the mapped cross-section over ``flat_ratio``, in [0, 1]."""
         if self._dirty:
-            self._memory = np.clip(section_normal_density(self.section(), self.n_sites) / self.flat_ratio, 0.0, 1.0)
+            self._memory = np.clip(section_normal_density(self.section(), self.n_sites, sigma=self.smoothing) / self.flat_ratio, 0.0, 1.0)
             self._dirty = False
         return self._memory
 
@@ -325,7 +342,7 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
     depth : float
         How far each pad presses into the object at a grasp, m.
     step : float
-        Mean rotation per sample, rad (each drawn within +-30 %).
+        Mean rotation per sample, rad, in [0.1 deg, 20 deg) (each drawn within +-30 %).
     stroke : (float, float)
         Range of the rotation per stroke, rad.
     under_estimate : float
@@ -353,29 +370,27 @@ def emulated_rotation(n_sides: int, *, turns: float = 4.0, inradius: float = 0.0
 
     from .._util import as_rng
     from ..dnf.data import RotationDataset
-    from .._validate import as_float
     from ..hardware.dnf_features import CurvedPadKinematics, frame_normal_angles
     from ..hardware.dsacon import DSACON32m
     from ..hardware.emulator import DSACON32mEmulator, SimWorld, TCPServer
     from ..models import MeshObject
 
-    if not isinstance(n_sides, (int, np.integer)) or (n_sides != 0 and n_sides < 3):
-        raise ValidationError(f"n_sides must be 0 (round) or an int >= 3, got {n_sides!r}")
-    if not (np.isfinite(turns) and 0 < turns <= 20):
-        raise ValidationError(f"turns must be in (0, 20], got {turns!r}")
-    if not (np.isfinite(inradius) and 0.012 <= inradius <= 0.03):
-        raise ValidationError(f"inradius must lie in [0.012, 0.03] m (the fingers' reach), got {inradius!r}")
-    if not (np.isfinite(depth) and 0 < depth <= 0.002):
-        raise ValidationError(f"depth must lie in (0, 2 mm] (m), got {depth!r}")
-    if not (np.isfinite(step) and 0 < step < np.radians(20)):
-        raise ValidationError(f"step must be in (0, 20 deg) rad, got {step!r}")
-    lo, hi = (float(x) for x in stroke)
+    n_sides = _as_n_sides(n_sides)
+    turns = as_float(turns, "turns", low=0.0, low_open=True, high=20.0)
+    inradius = as_float(inradius, "inradius (m; the fingers' reach)", low=0.012, high=0.03)
+    depth = as_float(depth, "depth (m)", low=0.0, low_open=True, high=0.002)
+    # at least 0.1 deg: a finer step would take 3600 samples a turn and more
+    step = as_float(step, "step (rad)", low=np.radians(0.1), high=np.radians(20.0), high_open=True)
+    lo, hi = as_float_array(stroke, "stroke (rad)", shape=(2,))
     if not (0 < lo <= hi < np.pi):
         raise ValidationError(f"stroke must be (lo, hi) rad with 0 < lo <= hi < pi, got {stroke!r}")
-    if not (np.isfinite(under_estimate) and -0.5 < under_estimate < 0.5):
-        raise ValidationError(f"under_estimate must be in (-0.5, 0.5), got {under_estimate!r}")
+    under_estimate = as_float(under_estimate, "under_estimate", low=-0.5, low_open=True, high=0.5, high_open=True)
+    slip_std = as_float(slip_std, "slip_std (rad)", low=0.0, high=np.pi)
+    pad_radius = as_float(pad_radius, "pad_radius (m)", low=0.0, low_open=True, high=1.0)
+    rate_hz = as_float(rate_hz, "rate_hz", low=0.0, low_open=True, high=1e4)
     if min_width is not None:
         min_width = as_float(min_width, "min_width (m)", low=0.0, high=0.1, high_open=True)
+    name = as_name(name, "name", allow_none=False)
     rng = as_rng(rng)
     th = np.radians(4.0)
     angles = np.array([np.radians(60.0), th, -th, th, -th, th, -th])
