@@ -24,7 +24,14 @@ the seventeenth):
   nineteenth with the evidence from the 150th sample with contact and no early raise,
   ``evstart-150``, and every round before the twentieth with the pre-shape's threshold
   absolute only, ``set:detection_relative=0``; the ``evstart``, ``evearly``, ``evramp``,
-  ``evwin``, ``evhand`` and ``evsoft`` variants set it so themselves, as they were screened);
+  ``evwin``, ``evhand`` and ``evsoft`` variants set it so themselves, as they were screened;
+  and every round before the twenty-first with a memory decay that did not slow with the
+  sides remembered, ``set:memory_decay_sides=0``; the variants that replace the memory
+  trace's step (``memcomp``, ``consol``, ``memblur``, ``evhold``, ``gated-decay``,
+  ``write``, ``decayn``) set it so themselves);
+* ``decayn-K``: the memory decays at min(1, K / n) of its rate, n the sides it holds
+  (recounted every 10th update): the screening form of ``memory_decay_sides`` (docs/dnf.md,
+  "Twenty-first round"; ``decayn-6`` is the defaults since);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -273,6 +280,9 @@ def factory(variant: str):
         class MemComp(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 # the screening form of the shipped split decay: in its place
                 self.params = dataclasses.replace(self.params, split_decay=0.0)
                 n = self.n_sites
@@ -402,6 +412,9 @@ def factory(variant: str):
         class Consol(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 self._W = np.zeros(self.n_sites)
                 trace, W = self.trace, self._W
 
@@ -410,6 +423,28 @@ def factory(variant: str):
                     return type(trace).step(trace, f, decay_scale=1.0 / (1.0 + W / W0))
                 trace.step = step
         return Consol
+    if variant.startswith("decayn-"):
+        # decayn-K: the memory decays at min(1, K / n) of its rate, n the sides it holds
+        # (count_surfaces of the trace, every 10th sample): a side of an n-gon is visited
+        # about every n-th stroke, so the time it must be held grows with n
+        K = float(variant.split("-")[1])
+        from touchloc.dnf import count_surfaces
+
+        class DecayN(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
+                trace, state = self.trace, {"t": 0, "scale": 1.0}
+
+                def step(f):
+                    if state["t"] % 10 == 0:
+                        state["scale"] = min(1.0, K / max(count_surfaces(trace.P), 1))
+                    state["t"] += 1
+                    return type(trace).step(trace, f, decay_scale=state["scale"])
+                trace.step = step
+        return DecayN
     if variant.startswith("slope-"):
         # slope-L: the rate is the slope of the total correction against the odometry, with
         # an intercept, over the read-outs so far, each weighing as the odometry turned since
@@ -510,6 +545,9 @@ def factory(variant: str):
         class MemBlur(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 g = np.exp(-0.5 * (periodic_distance(self.n_sites) / np.radians(S)) ** 2)
                 k = np.fft.rfft(g / g.sum())
                 trace_step = self.trace.step
@@ -524,6 +562,9 @@ def factory(variant: str):
         class EvHold(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 self._hold = np.zeros(self.n_sites)
                 trace, hold = self.trace, self._hold
 
@@ -543,6 +584,9 @@ def factory(variant: str):
         class GatedDecay(OrientationTracker):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 self._gate = np.zeros(self.n_sites)
                 trace, gate = self.trace, self._gate
 
@@ -566,6 +610,9 @@ def factory(variant: str):
         class Write(base):
             def __init__(self):
                 super().__init__()
+                # screened on a trace whose decay did not slow with its sides, and it
+                # replaces the trace's step
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
                 trace_step = self.trace.step
                 self.trace.step = lambda f: trace_step(np.maximum(f, self._written()))
                 n = self.n_sites

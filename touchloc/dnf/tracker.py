@@ -135,6 +135,10 @@ def as_odometry(odometry) -> float:
     return odo
 
 
+#: memory updates between two counts of the sides the memory holds (``memory_decay_sides``)
+_RECOUNT_EVERY = 10
+
+
 def as_angles(normal_angles, name: str = "normal_angles", *, allow_empty: bool = False) -> np.ndarray:
     """Validate contact-normal angles: a finite 1-D array (rad); returns (K,) float.
 
@@ -410,6 +414,14 @@ class TrackerParams:
     #: decay where the map field is silent: a peak written while the estimate was still
     #: off fades within about 250 samples unless the side is touched there again
     memory_decay: float = 0.004
+    #: the decay slows with the number of sides remembered (an addition to seed 000): it is
+    #: ``memory_decay * min(1, memory_decay_sides / n)``, ``n`` the sides the memory holds
+    #: (:func:`count_surfaces`, recounted on every 10th update). The hand turns the object
+    #: by about the same angle a stroke whatever its shape, so each side of an n-gon is
+    #: touched about every n-th stroke and must be held n times as long; up to
+    #: ``memory_decay_sides`` sides the decay is as before (docs/dnf.md, "Twenty-first
+    #: round"). Only with ``correct``, as the split decay; 0 turns it off
+    memory_decay_sides: float = 6.0
     #: a split fades (an addition to seed 000): a remembered side weaker than another one
     #: remembered ``split_near`` to ``split_far`` away (a side written twice while the
     #: estimate drifted, or a stray beside a side) decays at ``split_decay`` a sample more
@@ -548,6 +560,8 @@ class OrientationTracker:
             raise ValidationError(f"detection_settle must be 1 to 1e6 samples, got {p.detection_settle!r}")
         if not (0.0 <= p.detection_gain <= 1e3):
             raise ValidationError(f"detection_gain must be 0 to 1e3 (0: off), got {p.detection_gain!r}")
+        if not (0.0 <= p.memory_decay_sides <= 1e3):
+            raise ValidationError(f"memory_decay_sides must be 0 to 1e3 sides (0: off), got {p.memory_decay_sides!r}")
         if not (0.0 <= p.detection_relative <= 1e3):
             raise ValidationError(f"detection_relative must be 0 to 1e3 (0: off), got {p.detection_relative!r}")
         if not (0.0 <= p.detection_threshold <= 1e3):
@@ -611,6 +625,8 @@ class OrientationTracker:
         self._detections_total = np.zeros(n)  # the same, summed over the run
         self._detections_hand_total = np.zeros(n)
         self._detection_samples = 0
+        self._memory_updates = 0
+        self._decay_scale = 1.0
 
     def _rate0(self) -> float:
         """The rate before any read-out: the prior's mean (``rate_mode="mean"`` with
@@ -661,6 +677,8 @@ class OrientationTracker:
         self._detections_total[:] = 0.0
         self._detections_hand_total[:] = 0.0
         self._detection_samples = 0
+        self._memory_updates = 0
+        self._decay_scale = 1.0
         self.correction = 0.0
         self.odometry = 0.0
         self.n_steps = 0
@@ -753,7 +771,14 @@ class OrientationTracker:
                 m = m * hand_gate
             drive = drive + m
         f_m = self.map.step(drive if mute == 1.0 else mute * drive, lateral=lateral["map"])
-        self.trace.step(f_m)
+        if p.memory_decay_sides > 0 and p.correct:
+            if self._memory_updates % _RECOUNT_EVERY == 0:
+                from .estimators import count_surfaces   # here: estimators imports this module
+                self._decay_scale = min(1.0, p.memory_decay_sides / max(count_surfaces(self.trace.P), 1))
+            self._memory_updates += 1
+            self.trace.step(f_m, decay_scale=self._decay_scale)
+        else:
+            self.trace.step(f_m)
         if p.split_decay > 0 and p.correct:
             self._fade_splits(f_m)
         if p.correct:
