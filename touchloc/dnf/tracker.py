@@ -135,10 +135,6 @@ def as_odometry(odometry) -> float:
     return odo
 
 
-#: memory updates between two counts of the sides the memory holds (``memory_decay_sides``)
-_RECOUNT_EVERY = 10
-
-
 def as_angles(normal_angles, name: str = "normal_angles", *, allow_empty: bool = False) -> np.ndarray:
     """Validate contact-normal angles: a finite 1-D array (rad); returns (K,) float.
 
@@ -284,6 +280,10 @@ def _contacts(a: np.ndarray, gap: float) -> tuple[list, list, int]:
             if v is not None:
                 group = [v]
     return spreads, means, count
+
+
+#: memory updates between two counts of the sides the memory holds (``memory_decay_sides``)
+_RECOUNT_EVERY = 10
 
 
 @dataclass(frozen=True)

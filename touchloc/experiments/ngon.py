@@ -238,7 +238,8 @@ class MappedPrismEstimator:
     def memory(self) -> np.ndarray:
         """Normal-direction density of the mapped cross-section over ``flat_ratio``, in [0, 1]."""
         if self._dirty:
-            self._memory = np.clip(section_normal_density(self.section(), self.n_sites, sigma=self.smoothing) / self.flat_ratio, 0.0, 1.0)
+            density = section_normal_density(self.section(), self.n_sites, sigma=self.smoothing)
+            self._memory = np.clip(density / self.flat_ratio, 0.0, 1.0)
             self._dirty = False
         return self._memory
 
