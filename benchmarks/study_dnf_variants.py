@@ -32,6 +32,9 @@ the seventeenth):
 * ``decayn-K``: the memory decays at min(1, K / n) of its rate, n the sides it holds
   (recounted every 10th update): the screening form of ``memory_decay_sides`` (docs/dnf.md,
   "Twenty-first round"; ``decayn-6`` is the defaults since);
+* ``decaynmed-K-M``: as ``decayn-K``, n the median of the last M counts, so that a stray
+  side slows the decay only once it has lasted (docs/dnf.md, "Twenty-second round": not
+  kept);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
   rising (``spread-tuning+gain``: both). Either restores the expected bump's height; the
@@ -423,6 +426,26 @@ def factory(variant: str):
                     return type(trace).step(trace, f, decay_scale=1.0 / (1.0 + W / W0))
                 trace.step = step
         return Consol
+    if variant.startswith("decaynmed-"):
+        # decaynmed-K-M: as decayn-K, n the median of the last M counts (one every 10th
+        # update), so that a stray side counts only once it has lasted M / 2 counts
+        K, M = (float(x) for x in variant.split("-")[1:3])
+        from touchloc.dnf import count_surfaces
+
+        class DecayNMed(OrientationTracker):
+            def __init__(self):
+                super().__init__()
+                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
+                trace, state = self.trace, {"t": 0, "scale": 1.0, "seen": []}
+
+                def step(f):
+                    if state["t"] % 10 == 0:
+                        state["seen"] = (state["seen"] + [count_surfaces(trace.P)])[-int(M):]
+                        state["scale"] = min(1.0, K / max(float(np.median(state["seen"])), 1.0))
+                    state["t"] += 1
+                    return type(trace).step(trace, f, decay_scale=state["scale"])
+                trace.step = step
+        return DecayNMed
     if variant.startswith("decayn-"):
         # decayn-K: the memory decays at min(1, K / n) of its rate, n the sides it holds
         # (count_surfaces of the trace, every 10th sample): a side of an n-gon is visited
