@@ -5,7 +5,7 @@ The benchmark judges each cell on families of 32 data sets (seeds ``[31, ...]`` 
 can pass in one family and fail in the next. This study runs the full DNF (defaults, and
 optionally with parameters changed: ``NAME=VALUE``) on more families, ``[SEED, cell,
 object, i]`` for i < 32, and prints each family's right count, the pooled mean over all
-of them and its 95 % bootstrap interval (over data sets). The figures are in docs/dnf.md
+of them and its 95 % bootstrap interval (over data sets). The figures are in docs/dnf_rounds.md
 ("Twenty-first round").
 
     cd benchmarks

@@ -16,7 +16,7 @@ A cell that passes with the true rotation fails in tracking; a cell that does no
 in mapping. The table gives the right count in the second half for the 4-, 5-, 6-,
 8-gon and the round object (mean over the data sets). ``--counts`` adds, for each
 (cell, object) below 90 %, the share of the second half at each count and the right
-count of each data set. The figures are in docs/dnf.md ("Fourth round").
+count of each data set. The figures are in docs/dnf_rounds.md ("Fourth round").
 
     cd benchmarks
     ../.venv/bin/python study_dnf_probes.py --cells normals_per_contact=1 base noise=6 slip=3 \

@@ -1,6 +1,6 @@
 """Is there one parameter set of the DNF tracker that passes every cell of the sweep?
 
-Earlier rounds (docs/dnf.md) moved the tracker's parameters one or two at a time and kept
+Earlier rounds (docs/dnf_rounds.md) moved the tracker's parameters one or two at a time and kept
 nothing that held on a second group of data sets. This study moves them *jointly*: it draws
 random parameter sets around the defaults and scores each on the development seeds
 ``[11, cell, object, set]`` (neither the sweep's ``[2, ...]`` nor the held-out ``[3, ...]``
@@ -23,7 +23,7 @@ scores on the parameters' moves (:func:`sensitivity`) on the confirmation sets t
 
 The results are written as JSON after every parameter set (``--out``), and a rerun with the
 same file skips what is already there (so the ascent can be added later). The figures are
-in docs/dnf.md ("Fifth round"). The second command takes about 50 minutes on 2 cores.
+in docs/dnf_rounds.md ("Fifth round"). The second command takes about 50 minutes on 2 cores.
 """
 
 from __future__ import annotations

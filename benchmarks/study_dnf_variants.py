@@ -9,7 +9,7 @@ it, 11, 0.982, 0.935 after the tenth, 11, 0.988, 0.951 after the eleventh, 12, 0
 the seventeenth):
 
 * ``defaults`` (the shipped tracker: since the ninth round with its detection evidence,
-  since the tenth with the mute; the figures of the earlier rounds in docs/dnf.md are
+  since the tenth with the mute; the figures of the earlier rounds in docs/dnf_rounds.md are
   those of the tracker without them, ``set:detection_gain=0,detection_mute_high=0``, and
   the ninth round's those without the mute, ``set:detection_mute_high=0``; the
   ``evidence-*``, ``write-*`` and ``detect-*`` variants turn both off themselves (and the
@@ -30,10 +30,10 @@ the seventeenth):
   trace's step (``memcomp``, ``consol``, ``memblur``, ``evhold``, ``gated-decay``,
   ``write``, ``decayn``) set it so themselves);
 * ``decayn-K``: the memory decays at min(1, K / n) of its rate, n the sides it holds
-  (recounted every 10th update): the screening form of ``memory_decay_sides`` (docs/dnf.md,
+  (recounted every 10th update): the screening form of ``memory_decay_sides`` (docs/dnf_rounds.md,
   "Twenty-first round"; ``decayn-6`` is the defaults since);
 * ``decaynmed-K-M``: as ``decayn-K``, n the median of the last M counts, so that a stray
-  side slows the decay only once it has lasted (docs/dnf.md, "Twenty-second round": not
+  side slows the decay only once it has lasted (docs/dnf_rounds.md, "Twenty-second round": not
   kept);
 * ``spread-tuning``: where the estimated spread ``s`` exceeds ``noise_ref``, the filter
   bank's tuning widens to ``sqrt(w^2 + s^2 - noise_ref^2)`` instead of the input gain
@@ -43,7 +43,7 @@ the seventeenth):
 * ``spreadall-Q[-tune][/VARIANT]``: the spread normalisation fed by every contact's spread
   from the first sample (not only those on remembered sides), read at the window's
   quantile Q; ``-tune``: the tuning widens as in ``spread-tuning`` instead of the gain
-  rising (docs/dnf.md, "Eighth round");
+  rising (docs/dnf_rounds.md, "Eighth round");
 * ``strokewin-T``: the evidence window (``input_window`` = T samples) restarted at every
   regrasp (a sample whose odometry did not move), so that one stroke's codes are averaged;
 * ``correxp-E``: the spread normalisation lowers the correction gain by
@@ -61,7 +61,7 @@ the seventeenth):
   ``-f``: only where the map field is silent (the shipped ``split_decay``, since the
   eleventh round; these variants replace it); ``-w``: instead every
   site not written with a remembered side (above 0.4) LO-HI deg away, both halves of a
-  split alike (docs/dnf.md, "Eleventh round");
+  split alike (docs/dnf_rounds.md, "Eleventh round");
 * ``evidence-[MODE-]T-K-TH``: a leaky histogram of the sample codes in the object frame
   (time constant T samples, samples with contact only) and its contrast (the histogram
   over its mean, less its blur by 15 deg); K times the contrast's excess over TH
@@ -82,54 +82,54 @@ the seventeenth):
 * ``evmatch-K-TH``: K times the detection histogram's contrast in excess of TH (the
   shipped histogram, object frame) is added to the match field's input from the tenth
   sample with contact on, so that the read-out can pair detections with sides seen often
-  before any is remembered (docs/dnf.md, "Thirteenth round");
+  before any is remembered (docs/dnf_rounds.md, "Thirteenth round");
 * ``edgedrop-K``: a contact whose normals spread more than K times the estimated noise
-  (as an edge's do under the curved pad) is left out of its sample (docs/dnf.md,
+  (as an edge's do under the curved pad) is left out of its sample (docs/dnf_rounds.md,
   "Thirteenth round");
 * ``evhold-K``: the memory decays less where the detection evidence supports a side, by
   1 - min(K x the contrast's excess, 1) (the excess that pre-shapes the map field), so
-  that a side not landed on flat for a turn is held (docs/dnf.md, "Fourteenth round");
+  that a side not landed on flat for a turn is held (docs/dnf_rounds.md, "Fourteenth round");
 * ``slope-L``: the rate is the slope of the total correction against the odometry, with
   an intercept, over the read-outs so far (each weighing as the odometry turned since the
   one before), pulled to ``rate_prior_mean`` with weight L rad^3: a frame offset left by
-  the first turn's drift no longer biases the rate (docs/dnf.md, "Fourteenth round");
+  the first turn's drift no longer biases the rate (docs/dnf_rounds.md, "Fourteenth round");
 * ``trend-Q-L``: the rate from a local linear trend, c = b + r D, by a Kalman filter whose
   offset b walks by Q deg^2 per rad of odometry (slips and the first turn's frame offset)
-  and whose rate does not (prior as ``slope-L``; Q = 0 is ``slope-L``) (docs/dnf.md,
+  and whose rate does not (prior as ``slope-L``; Q = 0 is ``slope-L``) (docs/dnf_rounds.md,
   "Fifteenth round");
 * ``trendg-Q-L``: ``trend-Q-L`` whose offset moves only at a regrasp (a sample whose
-  odometry did not move since the one before), by Q deg^2 each (docs/dnf.md, "Sixteenth
+  odometry did not move since the one before), by Q deg^2 each (docs/dnf_rounds.md, "Sixteenth
   round");
 * ``offset-T-L``: ``slope-L`` over the first T turns, then the frame offset b it found is
-  kept and the rate is the shipped mean rate of c - b (docs/dnf.md, "Fifteenth round");
+  kept and the rate is the shipped mean rate of c - b (docs/dnf_rounds.md, "Fifteenth round");
 * ``evstart-N``: the detection evidence (pre-shape and mute) starts after N samples with
-  contact, without the early gate's raise (docs/dnf.md, "Fourteenth round", when the start
+  contact, without the early gate's raise (docs/dnf_rounds.md, "Fourteenth round", when the start
   was the window's length: those figures are ``evwin-150-N``'s now; ``evstart-150`` is the
   tracker of the seventeenth and eighteenth rounds);
 * ``evearly-N-R[-S]``: the evidence starts after N samples with contact, and its gate's
   ratios are raised by R there, the raise falling linearly to 0 at S samples (default
-  150); ``evearly-60-0.3`` is the defaults since the nineteenth round (docs/dnf.md,
+  150); ``evearly-60-0.3`` is the defaults since the nineteenth round (docs/dnf_rounds.md,
   "Nineteenth round");
 * ``evwin-W[-N][+NAME=VALUE[,NAME=VALUE]]``: the detection histograms' window W samples
   with contact, the evidence starting after N (default 150) without the early gate's
   raise, with other tracker parameters as given; ``evwin-150`` is the tracker before the
-  seventeenth round and ``evwin-300`` the one before the nineteenth (docs/dnf.md,
+  seventeenth round and ``evwin-300`` the one before the nineteenth (docs/dnf_rounds.md,
   "Seventeenth round");
 * ``evhand-X``: the hand frame's detection contrast subtracted from the object frame's at
   X times its weight, on the tracker of the eighteenth round (``evhand-1`` is
   ``evstart-150``; ``evhand-0``: not at all, the
   concentration ratio's gate and the mute alone keeping a round object out)
-  (docs/dnf.md, "Nineteenth round");
+  (docs/dnf_rounds.md, "Nineteenth round");
 * ``evsoft-M``: on the same tracker, the detection histograms fed the surface field's
   output as if its threshold were M lower, ``sigmoid(beta (u + M))``, so that a side whose scattered
   normals bring the field near threshold on a visit adds evidence without a peak
-  (docs/dnf.md, "Nineteenth round");
+  (docs/dnf_rounds.md, "Nineteenth round");
 * ``consol-W0``: a site's memory decays at 1 / (1 + W / W0) of the rate, W the map field's
   output summed there over the run: sides written often last longer between their writes
-  (docs/dnf.md, "Fourteenth round");
+  (docs/dnf_rounds.md, "Fourteenth round");
 * ``memblur-S``: the memory trace is written from the map field's output blurred by S deg,
   so that a side's peak is wider and survives the count's 3 deg smoothing at a lower
-  height (docs/dnf.md, "Fourteenth round");
+  height (docs/dnf_rounds.md, "Fourteenth round");
 * ``write-K-W-TH``: ``evidence-gwh-150-K-TH``, and the memory trace's input is the larger
   of the map field's output and W times the contrast's excess over TH (where the hand
   field is quiet): the evidence writes the memory directly (``peakwrite-K-W-TH``: only a
@@ -147,7 +147,7 @@ cell and object (the seventeenth round's table).
 taken out, as ``study_dnf_probes.py``'s probe) and splits the wrong second-half samples
 into a side missing, a side split in two, a stray peak, or a mix; for one data set
 (``--set``) it lists each side's visits (samples with a normal within 8 deg of it) and
-the memory's strength there every 20 samples. The figures are in docs/dnf.md ("Sixth
+the memory's strength there every 20 samples. The figures are in docs/dnf_rounds.md ("Sixth
 round" and "Seventh round").
 
     cd benchmarks

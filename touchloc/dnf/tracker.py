@@ -354,14 +354,14 @@ class TrackerParams:
     #: (over its mean, less its blur by ``detection_blur``), less the hand frame's, in
     #: excess of ``detection_threshold`` pre-shapes the map field, from the
     #: ``detection_start``-th sample with contact on (60, about two thirds of a turn; 150
-    #: until the nineteenth round, docs/dnf.md). It is scaled by the ratio of the
+    #: until the nineteenth round, docs/dnf_rounds.md). It is scaled by the ratio of the
     #: concentrations of the run's summed detections (the mass in their fullest tenth of
     #: sites, object frame over hand frame), from 0 at ``detection_hold_low`` to 1 at
     #: ``detection_hold_high``: a round object's detections hold still against the hand
     #: (ratios 0.16-0.52 on dense and seed-faithful development data after 150 samples,
-    #: polygons 0.52-2.45; docs/dnf.md, "Ninth round"; before that, see
+    #: polygons 0.52-2.45; docs/dnf_rounds.md, "Ninth round"; before that, see
     #: ``detection_early_raise``). ``detection_gain = 0`` turns it off.
-    #: The window was 150 samples until the seventeenth round (docs/dnf.md): 300 holds a side
+    #: The window was 150 samples until the seventeenth round (docs/dnf_rounds.md): 300 holds a side
     #: between flat landings a turn or more apart, at 6 deg of noise
     detection_window: float = 300.0
     detection_start: float = 60.0
@@ -370,7 +370,7 @@ class TrackerParams:
     #: linearly to 0 at ``detection_settle`` samples with contact. A round object's ratio
     #: starts high and falls as its detections spread over the object frame: on dense
     #: development data it reached 0.76 at 60 samples, 0.64 at 100 and 0.53 at 150, while
-    #: the 6 deg 8-gons' lowest were 0.67-0.70 and the 4- to 6-gons' higher (docs/dnf.md,
+    #: the 6 deg 8-gons' lowest were 0.67-0.70 and the 4- to 6-gons' higher (docs/dnf_rounds.md,
     #: "Nineteenth round"). ``detection_early_raise = 0`` gives the plain gate from the start
     detection_early_raise: float = 0.3
     detection_settle: float = 150.0
@@ -385,7 +385,7 @@ class TrackerParams:
     #: still against the hand writes no side, and sides written before fade at the
     #: memory's decay rate. Only a round object's ratios fall this low: in the second half
     #: of seed-faithful development data round objects stay within 0.15-0.33 (0.24 or less
-    #: in nine runs of ten), polygons within 0.33-2.4 (one run below 0.46); docs/dnf.md,
+    #: in nine runs of ten), polygons within 0.33-2.4 (one run below 0.46); docs/dnf_rounds.md,
     #: "Tenth round". ``detection_mute_high = 0`` turns it off
     detection_mute_low: float = 0.25
     detection_mute_high: float = 0.35
@@ -394,7 +394,7 @@ class TrackerParams:
     #: corner, whose normals may hold still for a few samples, stands out of an early
     #: histogram as much as a side does, and a pre-shape there would hold the stray side it
     #: writes for as long as the window remembers the stroke; beside the sides of the same
-    #: polygon its contrast is a fraction of theirs (docs/dnf.md, "Twentieth round").
+    #: polygon its contrast is a fraction of theirs (docs/dnf_rounds.md, "Twentieth round").
     #: 0 turns it off
     detection_relative: float = 0.15
     #: the match field's output into the map field (an addition to seed 000): a detected
@@ -419,14 +419,14 @@ class TrackerParams:
     #: (:func:`count_surfaces`, recounted on every 10th update). The hand turns the object
     #: by about the same angle a stroke whatever its shape, so each side of an n-gon is
     #: touched about every n-th stroke and must be held n times as long; up to
-    #: ``memory_decay_sides`` sides the decay is as before (docs/dnf.md, "Twenty-first
+    #: ``memory_decay_sides`` sides the decay is as before (docs/dnf_rounds.md, "Twenty-first
     #: round"). Only with ``correct``, as the split decay; 0 turns it off
     memory_decay_sides: float = 6.0
     #: a split fades (an addition to seed 000): a remembered side weaker than another one
     #: remembered ``split_near`` to ``split_far`` away (a side written twice while the
     #: estimate drifted, or a stray beside a side) decays at ``split_decay`` a sample more
     #: where the map field is silent. Sides of a polygon with up to 360 / 18 = 20 sides
-    #: lie farther apart (docs/dnf.md, "Eleventh round"). Only with ``correct``: without a
+    #: lie farther apart (docs/dnf_rounds.md, "Eleventh round"). Only with ``correct``: without a
     #: correction the estimate drifts on, and fading the older copies would let the map
     #: slide with the drift (a window of the last turn) instead of failing as seed 000's
     #: uncorrected memory does. ``split_decay = 0`` turns it off
@@ -457,8 +457,8 @@ class TrackerParams:
     #: ``(c D + rate_prior_mean rate_prior^2) / (D^2 + rate_prior^2)`` (least squares with a
     #: prior of ``rate_prior`` rad at rate ``rate_prior_mean``); ``"integral"``: every
     #: read-out error changes it by ``-rate_gain * error``; ``"off"``: no rate. The prior
-    #: weighs as half a radian of odometry (it was 1 rad until the thirteenth round of
-    #: docs/dnf.md): with a 10 % under-estimate the first turn, before any side is
+    #: weighs as half a radian of odometry (it was 1 rad until the thirteenth round,
+    #: docs/dnf_rounds.md): with a 10 % under-estimate the first turn, before any side is
     #: remembered, drifts less, and fewer sides are written twice
     rate_mode: str = "mean"
     rate_prior: float = 0.5
