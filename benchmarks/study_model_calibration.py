@@ -15,6 +15,16 @@ regions (``touchloc.belief.hpd_level``, modulo the mesh's symmetries).
     OMP_NUM_THREADS=1 ../.venv/bin/python study_model_calibration.py --trials 4 --offset 200 \
         --sigma 0.001 0.05 --contacts 10 30
 
+``--twin`` runs each estimator a second time on the same contacts with another seed and
+ranks three of the twin's particles in the first run's belief, as the truth is ranked. A
+sampler whose runs draw from one distribution puts a twin's particle in its level-a region
+a of the time, whatever that distribution; where the truth falls short of that and the
+twin does not, the posterior itself misses the truth (docs/localization.md, "Beliefs you
+can check: calibration").
+
+    OMP_NUM_THREADS=1 ../.venv/bin/python study_model_calibration.py --trials 8 --offset 50 \
+        --models proximity --twin
+
 Seed offsets: the calibration benchmark's tables use offsets 50-52 and the estimators'
 settings were chosen on 0-49; the integrated model's quadrature was checked on offsets
 0-11 (SMC only). Report other offsets.
@@ -54,7 +64,7 @@ def _models(mesh, sigma_pos, sigma_nor):
 
 
 def _one(job):
-    mesh, k, t, offset, sigma_pos, sigma_nor, estimators, smc_kw, models = job
+    mesh, k, t, offset, sigma_pos, sigma_nor, estimators, smc_kw, models, twin = job
     warnings.simplefilter("ignore")
     import bench_calibration as B
     from touchloc.belief import ScalingSeries, SMCFilter, hpd_level
@@ -69,14 +79,22 @@ def _one(job):
         for name, model in (("proximity", prox), ("integrated", integ)):
             if name not in models:
                 continue
+            def run(s):
+                if est.startswith("SMC"):
+                    return SMCFilter(model, rng=s, **smc_kw).localize(c, region)
+                # the search on the proximity model; the posterior stage on the model named
+                return ScalingSeries(prox, posterior_model=model, rng=s).localize(c, region)
+
             t0 = time.process_time()
-            if est.startswith("SMC"):
-                b = SMCFilter(model, rng=seed, **smc_kw).localize(c, region)
-            else:   # the search on the proximity model; the posterior stage on the model named
-                b = ScalingSeries(prox, posterior_model=model, rng=seed).localize(c, region)
+            b = run(seed)
             dt = time.process_time() - t0
-            out.append(dict(estimator=est, model=name, mesh=mesh, k=k, t=t,
-                            level=float(hpd_level(b, true, obj, rng=seed)), cpu=dt))
+            row = dict(estimator=est, model=name, mesh=mesh, k=k, t=t,
+                       level=float(hpd_level(b, true, obj, rng=seed)), cpu=dt)
+            if twin:
+                other = run(seed + 7777)
+                pick = np.random.default_rng(seed).choice(len(other), 3, replace=False)
+                row["twin"] = [float(hpd_level(b, other.poses[i], obj, rng=seed + int(i))) for i in pick]
+            out.append(row)
     return out
 
 
@@ -96,6 +114,7 @@ def _table(rows, levels=(0.5, 0.9, 0.95)):
     from _common import table
 
     meshes = list(dict.fromkeys(r["mesh"] for r in rows))
+    twins = all("twin" in r for r in rows)
     ks = sorted({r["k"] for r in rows})
     out = []
     ests = [e for e in ESTIMATORS if any(r["estimator"] == e for r in rows)]
@@ -106,7 +125,9 @@ def _table(rows, levels=(0.5, 0.9, 0.95)):
             for k in ks + ["all"]:
                 rr = [r for r in sel if k == "all" or r["k"] == k]
                 q = np.array([r["level"] for r in rr])
-                out.append((est, name, k, len(q), *(f"{100 * np.mean(q < a):.0f} %" for a in levels),
+                twin = [f"{100 * np.mean(qt < a):.0f} %" for qt in [np.array([x for r in rr for x in r["twin"]])]
+                        for a in levels] if twins else []
+                out.append((est, name, k, len(q), *(f"{100 * np.mean(q < a):.0f} %" for a in levels), *twin,
                             f"{np.median([r['cpu'] for r in rr]):.2f}"))
     per_mesh = []
     for est in ests:
@@ -117,8 +138,9 @@ def _table(rows, levels=(0.5, 0.9, 0.95)):
                               and r["mesh"] == m])
                 row.append(f"{100 * np.mean(q < 0.9):.0f} %")
             per_mesh.append(row)
+    twin_head = ["a twin run's particle in 50 %", "in 90 %", "in 95 %"] if twins else []
     return (table(["estimator", "likelihood", "contacts", "trials", "truth in 50 % region", "in 90 %", "in 95 %",
-                   "median CPU s"], out)
+                   *twin_head, "median CPU s"], out)
             + "\n\nTruth in the 90 % region, per mesh (all contact counts):\n\n"
             + table(["estimator", "likelihood"] + meshes, per_mesh))
 
@@ -144,6 +166,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ss-ess", type=float, default=None,
                     help="the ess_fraction of Scaling Series' posterior stage (default: temper's, 0.5); "
                          "use with --estimators ss")
+    ap.add_argument("--twin", action="store_true",
+                    help="also rank three particles of a second run (another seed) in each belief")
     ap.add_argument("--jsonl", help="also write every trial here")
     a = ap.parse_args(argv)
     bad = [m for m in a.meshes if m not in B.MESHES + B.HELD_OUT_MESHES]
@@ -155,7 +179,7 @@ def main(argv=None) -> int:
         smc_kw["jumps"] = a.jumps
     if a.ess is not None:
         smc_kw["ess_fraction"] = a.ess
-    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models) for t in range(a.trials)
+    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models, a.twin) for t in range(a.trials)
             for k in a.contacts for m in a.meshes]
     rows = []
     w0 = time.time()
