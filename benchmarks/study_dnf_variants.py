@@ -426,31 +426,14 @@ def factory(variant: str):
                     return type(trace).step(trace, f, decay_scale=1.0 / (1.0 + W / W0))
                 trace.step = step
         return Consol
-    if variant.startswith("decaynmed-"):
-        # decaynmed-K-M: as decayn-K, n the median of the last M counts (one every 10th
-        # update), so that a stray side counts only once it has lasted M / 2 counts
-        K, M = (float(x) for x in variant.split("-")[1:3])
-        from touchloc.dnf import count_surfaces
-
-        class DecayNMed(OrientationTracker):
-            def __init__(self):
-                super().__init__()
-                self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
-                trace, state = self.trace, {"t": 0, "scale": 1.0, "seen": []}
-
-                def step(f):
-                    if state["t"] % 10 == 0:
-                        state["seen"] = (state["seen"] + [count_surfaces(trace.P)])[-int(M):]
-                        state["scale"] = min(1.0, K / max(float(np.median(state["seen"])), 1.0))
-                    state["t"] += 1
-                    return type(trace).step(trace, f, decay_scale=state["scale"])
-                trace.step = step
-        return DecayNMed
-    if variant.startswith("decayn-"):
+    if variant.startswith(("decayn-", "decaynmed-")):
         # decayn-K: the memory decays at min(1, K / n) of its rate, n the sides it holds
         # (count_surfaces of the trace, every 10th sample): a side of an n-gon is visited
-        # about every n-th stroke, so the time it must be held grows with n
-        K = float(variant.split("-")[1])
+        # about every n-th stroke, so the time it must be held grows with n.
+        # decaynmed-K-M: n the median of the last M counts, so that a stray side counts
+        # only once it has lasted M / 2 counts (decayn-K is decaynmed-K-1)
+        parts = variant.split("-")[1:]
+        K, M = float(parts[0]), int(parts[1]) if variant.startswith("decaynmed-") else 1
         from touchloc.dnf import count_surfaces
 
         class DecayN(OrientationTracker):
@@ -459,11 +442,12 @@ def factory(variant: str):
                 # screened on a trace whose decay did not slow with its sides, and it
                 # replaces the trace's step
                 self.params = dataclasses.replace(self.params, memory_decay_sides=0.0)
-                trace, state = self.trace, {"t": 0, "scale": 1.0}
+                trace, state = self.trace, {"t": 0, "scale": 1.0, "seen": []}
 
                 def step(f):
                     if state["t"] % 10 == 0:
-                        state["scale"] = min(1.0, K / max(count_surfaces(trace.P), 1))
+                        state["seen"] = (state["seen"] + [count_surfaces(trace.P)])[-M:]
+                        state["scale"] = min(1.0, K / max(float(np.median(state["seen"])), 1.0))
                     state["t"] += 1
                     return type(trace).step(trace, f, decay_scale=state["scale"])
                 trace.step = step
