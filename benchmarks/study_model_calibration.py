@@ -28,6 +28,7 @@ calibration"):
 * ``--grid`` reads it off the exact posterior on a grid (0.5 mm over +-10 mm around the
   truth's position, every degree of yaw; planar trials), with no sampler at all;
 * ``--no-normals`` drops the contacts' normals (both models then score positions only);
+* ``--model-sigma-nor`` gives the models another normal noise than the sensor's;
 * ``ellipsoid-S`` among ``--meshes``: a sheared ellipsoid (45 x 30 x 25 mm, an icosphere
   of S subdivisions: 320 faces at 2, 20,480 at 5), smooth where S is large.
 
@@ -98,7 +99,7 @@ def _models(mesh, sigma_pos, sigma_nor):
 
 
 def _one(job):
-    mesh, k, t, offset, sigma_pos, sigma_nor, estimators, smc_kw, models, extras = job
+    mesh, k, t, offset, sigma_pos, sigma_nor, estimators, smc_kw, models, extras, model_nor = job
     warnings.simplefilter("ignore")
     import bench_calibration as B
     from touchloc.belief import ScalingSeries, SMCFilter, hpd_level
@@ -106,7 +107,7 @@ def _one(job):
 
     B.SIGMA_POS, B.SIGMA_NOR = sigma_pos, sigma_nor   # the generator's noise
     normals = "no-normals" not in extras
-    obj, prox, integ = _models(mesh, sigma_pos, sigma_nor if normals else None)
+    obj, prox, integ = _models(mesh, sigma_pos, (model_nor or sigma_nor) if normals else None)
     region = B.planar_region(obj)
     seed = 10_000 * k + 100 * _mesh_index(mesh) + offset + t
     true, c = B.trial(obj, region, k, seed)
@@ -245,6 +246,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", action="store_true",
                     help="also the truth's level under the exact posterior on a grid (slow: seconds a trial)")
     ap.add_argument("--no-normals", action="store_true", help="score the contacts' positions only")
+    ap.add_argument("--model-sigma-nor", type=float, default=None,
+                    help="the models' sigma_nor, where it differs from the sensor's (--sigma)")
     ap.add_argument("--jsonl", help="also write every trial here")
     a = ap.parse_args(argv)
     bad = [m for m in a.meshes if m not in B.MESHES + B.HELD_OUT_MESHES
@@ -259,7 +262,8 @@ def main(argv=None) -> int:
         smc_kw["jumps"] = a.jumps
     if a.ess is not None:
         smc_kw["ess_fraction"] = a.ess
-    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models, extras) for t in range(a.trials)
+    jobs = [(m, k, t, a.offset, a.sigma[0], a.sigma[1], ests, smc_kw, a.models, extras, a.model_sigma_nor)
+            for t in range(a.trials)
             for k in a.contacts for m in a.meshes]
     rows = []
     w0 = time.time()
@@ -279,7 +283,7 @@ def main(argv=None) -> int:
     stage = f"Scaling Series' posterior stage ess_fraction {a.ss_ess}; " if a.ss_ess is not None else ""
     print(f"{len(jobs)} trials in {time.time() - w0:.0f} s wall; sensor {a.sigma[0] * 1e3:g} mm / {a.sigma[1]:g}; "
           f"seed offsets {a.offset}-{a.offset + a.trials - 1}; SMCFilter settings {smc_kw}; {stage}"
-          f"diagnostics {sorted(extras) or 'none'}; "
+          f"diagnostics {sorted(extras) or 'none'}; models' sigma_nor {a.model_sigma_nor or a.sigma[1]:g}; "
           f"load average {load:.1f}\n")
     print(_table(rows))
     return 0
